@@ -1,0 +1,34 @@
+# Two commands do everything: `make demo` and `make test`. Each creates or refreshes .venv itself.
+PYTHON ?= python3
+VENV   ?= .venv
+PY     := $(VENV)/bin/python
+PYTEST_WORKERS ?= 2
+
+.PHONY: demo test lint bench clean
+
+$(VENV)/.stamp-runtime: pyproject.toml
+	$(PYTHON) -m venv $(VENV)
+	$(PY) -m pip install --quiet --upgrade pip
+	$(PY) -m pip install --quiet -e .
+	touch $@
+
+$(VENV)/.stamp-dev: pyproject.toml $(VENV)/.stamp-runtime
+	$(PY) -m pip install --quiet -e ".[dev]"
+	$(PY) -m ipykernel install --sys-prefix --name python3 > /dev/null
+	touch $@
+
+demo: $(VENV)/.stamp-runtime
+	$(VENV)/bin/jaxflex demo --out demo-output
+
+lint: $(VENV)/.stamp-dev
+	$(PY) -m ruff check jaxflex tests benchmarks
+
+test: $(VENV)/.stamp-dev lint
+	$(PY) -m pytest -n $(PYTEST_WORKERS) -m "not slow" tests
+
+bench: $(VENV)/.stamp-dev
+	$(PY) benchmarks/simulate.py
+	$(PY) benchmarks/identify.py
+
+clean:
+	rm -rf $(VENV) demo-output .pytest_cache .ruff_cache
