@@ -1,0 +1,212 @@
+"""Named physical parameters, their bounds, and the coordinates optimisers search in.
+
+A parameter set is a plain ``dict[str, Array]`` (a pytree), so it can be vmapped, differentiated
+and printed. A :class:`ParameterSpace` fixes an order and maps between three coordinates:
+
+* physical values (in the units of the spec),
+* the unit box ``u ∈ [0, 1]^d`` that the evolutionary algorithms search (log scale for
+  parameters spanning decades), and
+* unconstrained reals ``z = logit(u)`` for gradient refinement, so that any ``z`` respects
+  the bounds.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Iterable, Mapping
+from dataclasses import dataclass
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+from jaxtyping import Array, ArrayLike, Float
+
+Params = dict[str, Array]
+
+
+@dataclass(frozen=True)
+class ParameterSpec:
+    """One identifiable parameter: bounds, unit, and the value at which its effect vanishes."""
+
+    name: str
+    unit: str
+    lower: float
+    upper: float
+    reference: float
+    description: str = ""
+    log_scale: bool = True
+    null: float | None = None
+
+    def __post_init__(self) -> None:
+        if not self.name.isidentifier():
+            raise ValueError(f"parameter name {self.name!r} must be a Python identifier")
+        for label in ("lower", "upper", "reference"):
+            value = getattr(self, label)
+            if not math.isfinite(value):
+                raise ValueError(f"parameter {self.name}: {label}={value!r} is not finite")
+        if not self.lower < self.upper:
+            raise ValueError(
+                f"parameter {self.name}: lower bound {self.lower!r} must be below "
+                f"upper bound {self.upper!r}"
+            )
+        if self.log_scale and self.lower <= 0:
+            raise ValueError(
+                f"parameter {self.name}: a log-scale parameter needs a positive lower bound, "
+                f"got {self.lower!r}"
+            )
+
+    def with_bounds(self, lower: float, upper: float) -> ParameterSpec:
+        """A copy with new bounds (validated)."""
+        return ParameterSpec(
+            self.name, self.unit, lower, upper, self.reference, self.description,
+            self.log_scale, self.null,
+        )
+
+
+BASE_PARAMETERS: tuple[ParameterSpec, ...] = (
+    ParameterSpec("E", "Pa", 20e9, 100e9, 5.7002e10, "Young's modulus of the link"),
+    ParameterSpec("J_h", "kg m^2", 1e-3, 0.2, 0.0053, "hub moment of inertia"),
+    ParameterSpec("b_v", "N m s/rad", 1e-5, 0.3, 6.3016e-4, "viscous joint friction"),
+    ParameterSpec("tau_c", "N m", 1e-3, 0.2, 0.1071, "Coulomb joint friction"),
+    ParameterSpec("alpha", "1/s", 1e-3, 4.0, 1.8240, "Rayleigh damping, mass-proportional"),
+    ParameterSpec("beta", "s", 1e-7, 2e-4, 7.6275e-5, "Rayleigh damping, stiffness-proportional"),
+)
+
+
+class ParameterSpace:
+    """An ordered set of :class:`ParameterSpec` with coordinate maps for the optimisers."""
+
+    def __init__(self, specs: Iterable[ParameterSpec]) -> None:
+        self.specs: tuple[ParameterSpec, ...] = tuple(specs)
+        names = [s.name for s in self.specs]
+        duplicated = sorted({n for n in names if names.count(n) > 1})
+        if duplicated:
+            raise ValueError(f"parameter names appear twice: {duplicated}")
+        self.names: tuple[str, ...] = tuple(names)
+        self._lower = np.array([s.lower for s in self.specs], dtype=np.float64)
+        self._upper = np.array([s.upper for s in self.specs], dtype=np.float64)
+        self._log = np.array([s.log_scale for s in self.specs], dtype=bool)
+
+    def __len__(self) -> int:
+        return len(self.specs)
+
+    def __repr__(self) -> str:
+        return f"ParameterSpace({list(self.names)})"
+
+    def __getitem__(self, name: str) -> ParameterSpec:
+        for spec in self.specs:
+            if spec.name == name:
+                return spec
+        raise KeyError(f"unknown parameter {name!r}; known parameters: {list(self.names)}")
+
+    @property
+    def lower(self) -> np.ndarray:
+        return self._lower.copy()
+
+    @property
+    def upper(self) -> np.ndarray:
+        return self._upper.copy()
+
+    def with_bounds(self, bounds: Mapping[str, tuple[float, float]]) -> ParameterSpace:
+        """A copy with some bounds replaced, e.g. ``{"J_h": (1e-3, 1e-2)}``."""
+        unknown = sorted(set(bounds) - set(self.names))
+        if unknown:
+            raise ValueError(f"bounds given for unknown parameter(s) {unknown}")
+        return ParameterSpace(
+            s.with_bounds(*bounds[s.name]) if s.name in bounds else s for s in self.specs
+        )
+
+    def reference(self) -> Params:
+        """The reference values (for effects: their null values) as a parameter dict."""
+        return {s.name: jnp.asarray(s.reference, dtype=jnp.float64) for s in self.specs}
+
+    def nulls(self) -> Params:
+        """Null values of the parameters that have one (where an effect vanishes)."""
+        return {
+            s.name: jnp.asarray(s.null, dtype=jnp.float64) for s in self.specs if s.null is not None
+        }
+
+    # --- physical <-> vector ------------------------------------------------------------------
+    def to_vector(self, params: Mapping[str, ArrayLike]) -> Float[Array, "... d"]:
+        """Stack named values into a vector (last axis follows ``names``)."""
+        missing = [n for n in self.names if n not in params]
+        if missing:
+            raise KeyError(f"parameter values missing for {missing}")
+        return jnp.stack([jnp.asarray(params[n], dtype=jnp.float64) for n in self.names], axis=-1)
+
+    def from_vector(self, vector: Float[ArrayLike, "... d"]) -> Params:
+        """Split a vector (last axis) into named values."""
+        vector = jnp.asarray(vector, dtype=jnp.float64)
+        if vector.shape[-1] != len(self):
+            raise ValueError(
+                f"expected a last axis of length {len(self)} ({list(self.names)}), "
+                f"got shape {vector.shape}"
+            )
+        return {n: vector[..., i] for i, n in enumerate(self.names)}
+
+    # --- physical <-> unit box ---------------------------------------------------------------
+    def to_unit(self, params: Mapping[str, ArrayLike]) -> Float[Array, "... d"]:
+        """Physical values → unit box coordinates (log scale where the spec says so)."""
+        x = self.to_vector(params)
+        lo, hi = jnp.asarray(self._lower), jnp.asarray(self._upper)
+        log = jnp.asarray(self._log)
+        safe_x = jnp.where(log, jnp.maximum(x, lo * 1e-300), 1.0)
+        u_log = (jnp.log(safe_x) - jnp.log(jnp.where(log, lo, 1.0))) / jnp.where(
+            log, jnp.log(hi / jnp.where(log, lo, 1.0)), 1.0
+        )
+        u_lin = (x - lo) / (hi - lo)
+        return jnp.where(log, u_log, u_lin)
+
+    def from_unit(self, u: Float[ArrayLike, "... d"]) -> Params:
+        """Unit box coordinates → physical values (values outside [0, 1] extrapolate)."""
+        u = jnp.asarray(u, dtype=jnp.float64)
+        lo, hi = jnp.asarray(self._lower), jnp.asarray(self._upper)
+        log = jnp.asarray(self._log)
+        safe_lo = jnp.where(log, lo, 1.0)
+        x_log = safe_lo * jnp.exp(u * jnp.log(jnp.where(log, hi, 2.0) / safe_lo))
+        x_lin = lo + u * (hi - lo)
+        return self.from_vector(jnp.where(log, x_log, x_lin))
+
+    # --- unit box <-> unconstrained ----------------------------------------------------------
+    def to_unconstrained(self, params: Mapping[str, ArrayLike], margin: float = 1e-9) -> Array:
+        """Physical values → reals ``z = logit(u)``; values on a bound are nudged inside."""
+        u = jnp.clip(self.to_unit(params), margin, 1.0 - margin)
+        return jnp.log(u) - jnp.log1p(-u)
+
+    def from_unconstrained(self, z: Float[ArrayLike, "... d"]) -> Params:
+        """Reals → physical values strictly inside the bounds."""
+        return self.from_unit(jax.nn.sigmoid(jnp.asarray(z, dtype=jnp.float64)))
+
+    # --- checks -----------------------------------------------------------------------------
+    def validate(self, params: Mapping[str, ArrayLike], *, within_bounds: bool = False) -> None:
+        """Raise a ValueError naming each missing, unknown, non-finite or non-positive value."""
+        unknown = sorted(set(params) - set(self.names))
+        if unknown:
+            raise ValueError(f"unknown parameter(s) {unknown}; known parameters: {list(self.names)}")
+        missing = [n for n in self.names if n not in params]
+        if missing:
+            raise ValueError(f"parameter value(s) missing for {missing}")
+        for spec in self.specs:
+            value = np.asarray(params[spec.name], dtype=np.float64)
+            if not np.all(np.isfinite(value)):
+                raise ValueError(f"parameter {spec.name} must be finite, got {value}")
+            floor = spec.null if spec.null is not None else 0.0
+            if spec.null is not None and np.any(value < floor):
+                raise ValueError(f"parameter {spec.name} must be >= {floor}, got {value}")
+            if spec.null is None and np.any(value <= 0.0):
+                raise ValueError(f"parameter {spec.name} must be positive, got {value}")
+            if within_bounds and np.any((value < spec.lower) | (value > spec.upper)):
+                raise ValueError(
+                    f"parameter {spec.name}={value} lies outside its bounds "
+                    f"[{spec.lower}, {spec.upper}] {spec.unit}"
+                )
+
+
+def base_space() -> ParameterSpace:
+    """The six parameters of the reference testbed with the paper's bounds."""
+    return ParameterSpace(BASE_PARAMETERS)
+
+
+def reference_parameters() -> Params:
+    """The paper's identified values (the testbed's reference parameter set)."""
+    return base_space().reference()
