@@ -1,0 +1,78 @@
+"""The interface every physical effect implements, and the base joint-friction law.
+
+An effect is a small :class:`equinox.Module` that declares its parameters (with bounds and a
+*null value* at which it vanishes) and overrides one or more hooks of the model:
+
+* :meth:`Effect.structure` — change the mass or stiffness matrices (a payload, a compliant root);
+* :meth:`Effect.friction` — add a joint torque opposing the joint velocity (Stribeck friction);
+* :meth:`Effect.loads` — add position-dependent generalised forces ``Σ_i a_i(θ, θ') · f_i``
+  with constant shapes ``f_i`` (gravity in a tilted plane);
+* :meth:`Effect.input_torque` — transform the applied torque signal (a delay, a motor lag).
+
+At the null values every hook must return its input unchanged (or add exactly zero), so the model
+with the effect *is* the base model there and score tests can differentiate at that point.
+"""
+
+from __future__ import annotations
+
+from typing import ClassVar
+
+import equinox as eqx
+import jax.numpy as jnp
+from jaxtyping import Array, Float
+
+from jaxflex.parameters import ParameterSpec, Params
+
+
+class Structure(eqx.Module):
+    """Structural matrices over ``q = [theta, w_1, w'_1, …]`` for one parameter set.
+
+    Damping is not stored: the simulator applies Rayleigh damping ``α·P M P + β·K`` on the
+    elastic coordinates (``P`` removes the hub row and column), as the testbed specifies.
+    """
+
+    mass: Float[Array, "n n"]
+    stiffness: Float[Array, "n n"]
+    first_moment: Float[Array, " n"]  # generalised load of a unit uniform transverse field
+    tip: Float[Array, " n"]  # row selecting the tip deflection w(L)
+    root_curvature: Float[Array, " n"]  # row giving w''(0)
+    length: float = eqx.field(static=True)
+
+
+class Effect(eqx.Module):
+    """Base class of a physical effect; subclasses override the hooks they need.
+
+    Class attributes document the effect for people and for the discovery ranking:
+    ``name`` (registry key), ``parameters`` (their specs, each with a ``null``),
+    ``description`` (the physics, one paragraph) and ``signature`` (how it shows in the residuals).
+    """
+
+    name: ClassVar[str] = "effect"
+    parameters: ClassVar[tuple[ParameterSpec, ...]] = ()
+    description: ClassVar[str] = ""
+    signature: ClassVar[str] = ""
+
+    def structure(self, structure: Structure, params: Params) -> Structure:
+        """Modify mass or stiffness; the default leaves them unchanged."""
+        return structure
+
+    def friction(self, params: Params, velocity: Array, omega_s: float) -> Array:
+        """Extra joint torque opposing ``velocity`` (rad/s); zero by default."""
+        return jnp.zeros_like(velocity)
+
+    def loads(self, structure: Structure, params: Params) -> Float[Array, "k n"]:
+        """Shapes ``f_i`` of position-dependent generalised forces; none by default."""
+        return jnp.zeros((0, structure.mass.shape[0]))
+
+    def load_amplitudes(self, params: Params, angle: Array, velocity: Array) -> Float[Array, " k"]:
+        """Amplitudes ``a_i(θ, θ')`` multiplying the shapes of :meth:`loads`."""
+        return jnp.zeros((0,))
+
+    def input_torque(self, params: Params, torque: Float[Array, " m"], h: float) -> Array:
+        """Torque reaching the joint from the applied torque on a grid of step ``h``."""
+        return torque
+
+
+def joint_friction(params: Params, velocity: Array, omega_s: float) -> Array:
+    """Base friction law ``b_v·θ' + tau_c·tanh(θ'/omega_s)`` (a smooth Coulomb law)."""
+    return params["b_v"] * velocity + params["tau_c"] * jnp.tanh(velocity / omega_s)

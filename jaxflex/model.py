@@ -1,0 +1,104 @@
+"""The model: testbed + effects → parameter space and structural matrices for any parameter set."""
+
+from __future__ import annotations
+
+from collections.abc import Iterable
+
+import equinox as eqx
+import jax.numpy as jnp
+from jaxtyping import Array
+
+from jaxflex.effects._base import Effect, Structure, joint_friction
+from jaxflex.fem import BeamPatterns
+from jaxflex.parameters import BASE_PARAMETERS, ParameterSpace, Params
+from jaxflex.testbed import Testbed
+
+
+class Model(eqx.Module):
+    """A flexible-link arm: the reference testbed plus any number of physical effects.
+
+    ``n_substeps`` integrator steps are taken per sample interval; see :mod:`jaxflex.simulate`.
+    """
+
+    testbed: Testbed = Testbed()
+    effects: tuple[Effect, ...] = ()
+    n_substeps: int = eqx.field(static=True, default=2)
+
+    def __check_init__(self) -> None:
+        if not isinstance(self.n_substeps, int) or self.n_substeps < 1:
+            raise ValueError(f"n_substeps must be an int >= 1, got {self.n_substeps!r}")
+        names = [e.name for e in self.effects]
+        for effect in self.effects:
+            if not isinstance(effect, Effect):
+                raise TypeError(f"effects must be Effect instances, got {type(effect).__name__}")
+        if len(set(names)) != len(names):
+            raise ValueError(f"an effect appears twice: {names}")
+
+    @property
+    def space(self) -> ParameterSpace:
+        """The base parameters followed by each effect's parameters."""
+        return ParameterSpace(
+            BASE_PARAMETERS + tuple(p for e in self.effects for p in e.parameters)
+        )
+
+    @property
+    def effect_names(self) -> tuple[str, ...]:
+        return tuple(e.name for e in self.effects)
+
+    def with_effects(self, *effects: Effect) -> Model:
+        """A copy with more effects appended."""
+        return Model(self.testbed, self.effects + tuple(effects), self.n_substeps)
+
+    def without_effects(self, names: Iterable[str]) -> Model:
+        """A copy without the named effects."""
+        drop = set(names)
+        return Model(
+            self.testbed, tuple(e for e in self.effects if e.name not in drop), self.n_substeps
+        )
+
+    def patterns(self) -> BeamPatterns:
+        """Mesh patterns (NumPy, per unit rhoA and EI) for this testbed."""
+        return BeamPatterns(self.testbed.length, self.testbed.n_elements)
+
+    def structure(self, params: Params) -> Structure:
+        """Mass and stiffness for one parameter set, after every effect has acted."""
+        tb = self.testbed
+        pat = self.patterns()
+        rho_a = tb.mass_per_length
+        mass = rho_a * jnp.asarray(pat.mass)
+        mass = mass.at[0, 0].add(params["J_h"])
+        structure = Structure(
+            mass=mass,
+            stiffness=params["E"] * tb.second_moment * jnp.asarray(pat.stiffness),
+            first_moment=rho_a * jnp.asarray(pat.first_moment),
+            tip=jnp.asarray(pat.tip),
+            root_curvature=jnp.asarray(pat.root_curvature),
+            length=tb.length,
+        )
+        for effect in self.effects:
+            structure = effect.structure(structure, params)
+        return structure
+
+    def friction(self, params: Params, velocity: Array) -> Array:
+        """Total joint friction torque at joint velocity ``velocity``."""
+        omega_s = self.testbed.omega_s
+        torque = joint_friction(params, velocity, omega_s)
+        for effect in self.effects:
+            torque = torque + effect.friction(params, velocity, omega_s)
+        return torque
+
+    def loads(self, structure: Structure, params: Params) -> Array:
+        """Stacked shapes of all position-dependent loads, ``(k, n)``."""
+        shapes = [e.loads(structure, params) for e in self.effects]
+        return jnp.concatenate([jnp.zeros((0, structure.mass.shape[0]))] + shapes, axis=0)
+
+    def load_amplitudes(self, params: Params, angle: Array, velocity: Array) -> Array:
+        """Stacked amplitudes of all position-dependent loads, ``(k,)``."""
+        parts = [e.load_amplitudes(params, angle, velocity) for e in self.effects]
+        return jnp.concatenate([jnp.zeros((0,))] + parts)
+
+    def input_torque(self, params: Params, torque: Array, h: float) -> Array:
+        """The applied torque after every input effect (delay, lag), on a grid of step ``h``."""
+        for effect in self.effects:
+            torque = effect.input_torque(params, torque, h)
+        return torque
