@@ -1,0 +1,7 @@
+"""``python -m jaxflex`` runs the command line."""
+
+import sys
+
+from jaxflex.cli import main
+
+sys.exit(main())
