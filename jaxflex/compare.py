@@ -24,6 +24,7 @@ from __future__ import annotations
 
 import math
 import textwrap
+import warnings
 from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import Any
@@ -31,7 +32,7 @@ from typing import Any
 import numpy as np
 from jaxtyping import ArrayLike, Bool, Complex, Float
 
-from jaxflex._io import provenance
+from jaxflex._io import provenance, to_jsonable
 from jaxflex.data import OUTPUT_COLUMNS, Dataset, Record
 from jaxflex.metrics import _window, frf_nrmse, h1_frf, nrmse, relative_error
 from jaxflex.modal import free_hub_modes
@@ -116,8 +117,8 @@ class RecordComparison:
 
     name: str
     role: str  # "fit" or "held-out"
-    nrmse: dict[str, float]  # per output, percent
-    relative_error: dict[str, float]  # per output, fraction
+    nrmse: dict[str, float]  # per output, percent (NaN if the measured output is all zero)
+    relative_error: dict[str, float]  # per output, fraction (likewise)
     frf_nrmse: float  # percent, compared bins only (NaN if none)
     frf_nrmse_raw: float  # percent, every bin of the band (NaN if one is not finite)
     frf_bins: tuple[int, int]  # (compared, in band)
@@ -210,8 +211,8 @@ class Comparison:
         return self.table()
 
     def to_dict(self) -> dict[str, Any]:
-        """Everything but the arrays, as JSON-ready values (with provenance)."""
-        return {
+        """Everything but the arrays, as plain JSON values (NaN as None, with provenance)."""
+        return to_jsonable({
             "params": dict(self.params),
             "effects": list(self.effects),
             "model_resonances_hz": list(self.resonances_hz),
@@ -233,7 +234,7 @@ class Comparison:
                 "relative_error": self.mean("relative_error"),
             },
             "provenance": provenance(),
-        }
+        })
 
     def _index(self, key: int | str) -> int:
         if isinstance(key, str):
@@ -401,9 +402,14 @@ def _compare_record(
     errors, relative = {}, {}
     for name in OUTPUT_COLUMNS:
         measured, simulated = record.channel(name)[window], np.asarray(out.channel(name))[window]
-        if not np.any(measured):
-            raise ValueError(f"record {record.name!r}: measured {name} is zero everywhere in "
-                             "the time window, so its NRMSE is undefined")
+        if not np.any(measured):  # e.g. an input too weak to break the joint free
+            warnings.warn(
+                f"record {record.name!r}: measured {name} is zero throughout the time window; "
+                "its NRMSE and relative error are undefined (NaN)",
+                stacklevel=3,
+            )
+            errors[name] = relative[name] = math.nan
+            continue
         errors[name] = nrmse(measured, simulated)
         relative[name] = relative_error(measured, simulated)
 
@@ -530,7 +536,7 @@ def _format_table(c: Comparison) -> str:
         cells += [_number(r.nrmse[o]) for o in OUTPUT_COLUMNS]
         cells += [_number(r.frf_nrmse), _number(r.frf_nrmse_raw)]
         cells.append(f"{r.frf_bins[0]}/{r.frf_bins[1]}")
-        cells += [f"{r.relative_error[o]:.2e}" for o in OUTPUT_COLUMNS]
+        cells += [_scientific(r.relative_error[o]) for o in OUTPUT_COLUMNS]
         if show_floor:
             keys = (*OUTPUT_COLUMNS, "frf")
             cells += [_number(r.noise_floor[k]) if k in r.noise_floor else "-" for k in keys]
@@ -560,6 +566,10 @@ def _format_table(c: Comparison) -> str:
     rule = "-" * len(fmt(header))
     notes = [textwrap.fill(n, 100, subsequent_indent="  ") for n in notes]
     return "\n".join([fmt(header), rule, *map(fmt, lines), rule, *notes]) + "\n"
+
+
+def _scientific(x: float) -> str:
+    return f"{x:.2e}" if math.isfinite(x) else "n/a"
 
 
 def _number(x: float) -> str:

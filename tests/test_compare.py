@@ -1,0 +1,216 @@
+"""Model vs measurement: noise floors, FRF masking, a wrong stiffness, the table and JSON."""
+
+from __future__ import annotations
+
+import json
+import math
+
+import numpy as np
+import pytest
+import scipy.signal as ss
+
+from jaxflex.compare import Comparison, FRFSettings, compare, noise_floor
+from jaxflex.data import Dataset, Record
+from jaxflex.metrics import nrmse
+from jaxflex.model import Model
+from jaxflex.parameters import reference_parameters
+from jaxflex.synthetic import make_records
+
+NOISE = {"encoder_counts": 4096, "accel_sigma": 0.05}
+OUTPUTS = ("joint_angle", "tip_acceleration")
+
+
+@pytest.fixture(scope="module")
+def records() -> Dataset:
+    return make_records(seed=0)
+
+
+@pytest.fixture(scope="module")
+def right(records) -> Comparison:
+    return compare(Model(), reference_parameters(), records, fit_names=["triangular"], **NOISE)
+
+
+@pytest.fixture(scope="module")
+def wrong(records) -> Comparison:
+    params = reference_parameters() | {"E": 0.9 * reference_parameters()["E"]}
+    return compare(Model(), params, records, fit_names=["triangular"], **NOISE)
+
+
+def test_noise_free_records_are_reproduced_exactly():
+    clean = make_records(noise=False)
+    c = compare(Model(), reference_parameters(), clean)
+    for row in c.rows:
+        assert max(row.nrmse.values()) < 1e-9
+        assert row.frf_nrmse < 1e-9 and row.frf_nrmse_raw < 1e-9
+        assert row.noise_floor == {}
+        assert row.measured_peaks_hz == pytest.approx(row.model_peaks_hz)
+
+
+def test_correct_model_scores_at_the_noise_floor(right):
+    assert right.names == ("triangular", "pulse", "half_sine")
+    assert [r.role for r in right.rows] == ["fit", "held-out", "held-out"]
+    for row in right.rows:
+        for out in OUTPUTS:
+            floor = row.noise_floor[out]
+            assert row.nrmse[out] <= 1.3 * floor, (row.name, out)
+            assert row.relative_error[out] == pytest.approx(row.nrmse[out] / 100, rel=1e-12)
+        # white accelerometer noise sits right on its floor (2001 samples: ±3 % spread)
+        ratio = row.nrmse["tip_acceleration"] / row.noise_floor["tip_acceleration"]
+        assert 0.9 < ratio < 1.1
+        assert row.frf_nrmse <= 2.0 * row.noise_floor["frf"]
+        assert row.frf_nrmse < 0.5  # percent
+    held = right.mean("nrmse")
+    assert held["tip_acceleration"] == pytest.approx(
+        np.mean([right[n].nrmse["tip_acceleration"] for n in ("pulse", "half_sine")])
+    )
+
+
+def test_wrong_stiffness_is_visible_in_frf_and_resonances(right, wrong):
+    # natural frequencies scale with sqrt(E)
+    assert wrong.resonances_hz[0] == pytest.approx(math.sqrt(0.9) * right.resonances_hz[0], 1e-9)
+    assert 8.0 < right.resonances_hz[0] < 9.0
+    for good, bad in zip(right.rows, wrong.rows, strict=True):
+        assert bad.frf_nrmse > 5.0 and bad.frf_nrmse > 20 * good.frf_nrmse, bad.name
+        assert bad.nrmse["tip_acceleration"] > 10 * bad.noise_floor["tip_acceleration"]
+        # the right model puts every FRF peak where the measurement has one
+        assert good.model_peaks_hz == pytest.approx(good.measured_peaks_hz, abs=0.015)
+    # the pulse excites the first flexible mode: its measured FRF peak lies next to the model's
+    # resonance; the softer model loses that peak
+    (mode_peak,) = [f for f in right["pulse"].measured_peaks_hz if 7.5 < f < 9.0]
+    assert abs(mode_peak - right.resonances_hz[0]) < 0.25
+    assert min(abs(f - mode_peak) for f in right["pulse"].model_peaks_hz) < 0.02
+    assert min(abs(f - mode_peak) for f in wrong["pulse"].model_peaks_hz) > 0.3
+
+
+def test_frf_matches_scipy_h1_and_masks_the_pulse_nulls(right, records):
+    row, pulse = right["pulse"], records["pulse"]
+    n = pulse.n_samples
+    kw = {"fs": pulse.sample_rate, "window": "boxcar", "nperseg": n, "detrend": "constant"}
+    _, s_yx = ss.csd(pulse.torque, pulse.tip_acceleration, **kw)
+    _, s_xx = ss.welch(pulse.torque, **kw)
+    band = row.frf.band
+    np.testing.assert_allclose(row.frf.measured[band], s_yx[band] / s_xx[band], rtol=1e-9)
+    # a 0.3 s pulse has no power at multiples of 1/0.3 Hz: those bins are left out
+    left_out = row.frf.freqs[band & ~row.frf.compared]
+    nulls = np.array([10 / 3, 20 / 3, 10.0, 40 / 3])
+    assert left_out.size and np.all(np.min(np.abs(left_out[:, None] - nulls), axis=1) < 0.6)
+    assert row.frf.compared[1:6].all()  # the low-frequency bins are compared
+    assert row.frf_bins == (int(row.frf.compared.sum()), int(band.sum()))
+    # the raw definition keeps the null bins, where noise is divided by almost nothing
+    assert row.frf_nrmse_raw > row.frf_nrmse
+
+
+def test_masking_can_be_switched_off(records):
+    raw = FRFSettings(min_input_db=None)
+    c = compare(Model(), reference_parameters(), records["half_sine"], frf=raw)
+    row = c[0]
+    assert row.frf_bins[0] == row.frf_bins[1] == 30
+    assert row.frf_nrmse == row.frf_nrmse_raw
+
+
+def test_welch_estimate_masks_on_coherence():
+    rec = make_records(inputs=("multisine",), amplitudes={"multisine": 0.4}, seed=3)[0]
+    settings = FRFSettings(nperseg=500, min_coherence=0.9)
+    row = compare(Model(), reference_parameters(), rec, frf=settings)[0]
+    compared = row.frf.compared
+    assert compared.any() and np.all(row.frf.coherence[compared] >= 0.9)
+    assert not np.all(row.frf.coherence[row.frf.band] >= 0.9)  # something was left out
+    assert row.frf_bins[0] < row.frf_bins[1]
+    assert "coherence >= 0.9" in settings.describe()
+
+
+def test_a_joint_that_never_moves_gives_nan_not_a_crash():
+    weak = make_records(inputs=("multisine",), seed=3)[0]  # 0.05 N m < Coulomb friction
+    assert not np.any(weak.joint_angle)
+    with pytest.warns(UserWarning, match="'multisine': measured joint_angle is zero"):
+        c = compare(Model(), reference_parameters(), weak)
+    assert math.isnan(c[0].nrmse["joint_angle"]) and math.isfinite(c[0].nrmse["tip_acceleration"])
+    assert "n/a" in c.table()
+    assert json.loads(json.dumps(c.to_dict(), allow_nan=False))["records"][0][
+        "nrmse_percent"
+    ]["joint_angle"] is None
+
+
+def test_time_window_limits_the_metrics(right, records):
+    c = compare(Model(), reference_parameters(), records["pulse"], t_end=1.0)
+    keep = records["pulse"].time <= 1.0 + 1e-12
+    sim = np.asarray(right.outputs("pulse").tip_acceleration)
+    expected = nrmse(records["pulse"].tip_acceleration[keep], sim[keep])
+    assert c[0].nrmse["tip_acceleration"] == pytest.approx(expected, rel=1e-12)
+    assert c[0].nrmse["tip_acceleration"] != pytest.approx(right["pulse"].nrmse["tip_acceleration"])
+
+
+def test_noise_floor_has_the_known_value():
+    t = np.arange(2001) * 1e-3
+    angle = np.full_like(t, 0.5)
+    acc = 3.0 * np.sin(2 * np.pi * 5 * t)
+    rec = Record(t, np.sin(t), angle, acc, name="known")
+    floor = noise_floor(rec, encoder_counts=4096, accel_sigma=0.05)
+    assert floor["joint_angle"] == pytest.approx(100 * (2 * np.pi / 4096 / np.sqrt(12)) / 0.5)
+    assert floor["tip_acceleration"] == pytest.approx(100 * 0.05 / (3.0 / np.sqrt(2)), rel=1e-3)
+    assert noise_floor(rec, encoder_counts=None, accel_sigma=0.05).keys() == {"tip_acceleration"}
+    with pytest.raises(ValueError, match="encoder_counts"):
+        noise_floor(rec, encoder_counts=0)
+    with pytest.raises(ValueError, match="accel_sigma"):
+        noise_floor(rec, accel_sigma=-1.0)
+
+
+def test_table_has_one_row_per_record_and_says_what_it_compares(right):
+    text = right.table()
+    lines = text.splitlines()
+    assert "NRMSE angle %" in lines[0] and "NRMSE tip acc %" in lines[0]
+    assert "FRF NRMSE %" in lines[0] and "rel.err angle" in lines[0] and "floor FRF %" in lines[0]
+    for row in right.rows:
+        matching = [ln for ln in lines if ln.split() and ln.split()[0] == row.name]
+        assert len(matching) == 1
+        cells = matching[0].split()
+        assert cells[1] == row.role
+        assert float(cells[2]) == pytest.approx(row.nrmse["joint_angle"], rel=5e-3)
+        assert float(cells[3]) == pytest.approx(row.nrmse["tip_acceleration"], rel=5e-3)
+    assert "input power within 30 dB" in text  # the FRF masking is stated
+    assert f"{right.resonances_hz[0]:.2f} Hz" in text
+    assert str(right) == text
+
+
+def test_to_dict_is_strict_json(right, records):
+    data = right.to_dict()
+    again = json.loads(json.dumps(data, allow_nan=False))
+    assert [r["name"] for r in again["records"]] == list(records.names)
+    assert again["records"][1]["role"] == "held-out"
+    assert again["params"]["E"] == pytest.approx(5.7002e10)
+    assert again["settings"]["noise"] == NOISE
+    assert "versions" in again["provenance"]
+    # a metric that cannot be computed is null, not NaN
+    nan_row = compare(
+        Model(), reference_parameters(), records["pulse"], frf=FRFSettings(f_max=0.1)
+    )
+    assert json.loads(json.dumps(nan_row.to_dict(), allow_nan=False))["records"][0][
+        "frf_nrmse_percent"
+    ] is None
+
+
+def test_prediction_and_lookup(right, records):
+    pred = right.prediction("pulse")
+    assert pred.name == "pulse_model"
+    np.testing.assert_array_equal(pred.torque, records["pulse"].torque)
+    np.testing.assert_array_equal(pred.tip_acceleration, right.outputs(1).tip_acceleration)
+    assert "tip_deflection" in pred.extras
+    assert right[-1].name == "half_sine" and right.record("half_sine") is records["half_sine"]
+    with pytest.raises(KeyError, match="no record named 'pluse'"):
+        right["pluse"]
+
+
+def test_input_errors_name_the_problem(records):
+    model, ref = Model(), reference_parameters()
+    with pytest.raises(ValueError, match=r"fit_names \['tri'\]"):
+        compare(model, ref, records, fit_names=["tri"])
+    with pytest.raises(ValueError, match="missing for \\['beta'\\]"):
+        compare(model, {k: v for k, v in ref.items() if k != "beta"}, records)
+    with pytest.raises(ValueError, match="t_end"):
+        compare(model, ref, records, t_end=-1.0)
+    with pytest.raises(ValueError, match="at least one record"):
+        compare(model, ref, [])
+    with pytest.raises(ValueError, match="min_input_db"):
+        FRFSettings(min_input_db=10.0)
+    with pytest.raises(ValueError, match="f_max"):
+        FRFSettings(f_max=0.0)
