@@ -63,8 +63,8 @@ def plot_time(
     )
     t = record.time
     for k, name in enumerate(outputs):
-        measured = record.channel(name)
         model = np.asarray(out.channel(name))
+        measured = record.channel(name)
         if model.shape != measured.shape:
             raise ValueError(f"simulated {name} has shape {model.shape} but record "
                              f"{record.name!r} has {measured.shape}")
