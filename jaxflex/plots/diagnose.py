@@ -1,0 +1,236 @@
+"""Figures of residual diagnostics and of a discovery run.
+
+* :func:`plot_autocorrelation` — residual autocorrelation with the white-noise band;
+* :func:`plot_cross_correlation` — residual–torque correlation over lags, peak lag marked;
+* :func:`plot_spectrum` — residual PSD against the noise floor, peaks labelled in Hz;
+* :func:`plot_localisation` — misfit concentration per operating condition and time window;
+* :func:`plot_diagnosis` — all of the above for both output channels on one page;
+* :func:`plot_error_falling` — NRMSE per model structure of a discovery run, noise floor dashed;
+* :func:`plot_overlay` — one record measured against the model before and after.
+
+Every number drawn is read from a :class:`~jaxflex.diagnose.Diagnosis` (or given); nothing is
+computed here beyond unit conversions.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping, Sequence
+
+import numpy as np
+from matplotlib.axes import Axes
+from matplotlib.figure import Figure
+
+from jaxflex.data import OUTPUT_COLUMNS, Record
+from jaxflex.diagnose import (
+    Autocorrelation,
+    CrossCorrelation,
+    Diagnosis,
+    Localisation,
+    ResidualSpectrum,
+)
+from jaxflex.plots._style import MARK, MEASURED, MODEL, RESIDUAL, new_figure, style
+
+_LABELS = {"joint_angle": "joint angle", "tip_acceleration": "tip acceleration"}
+_AFTER = "tab:green"
+
+
+def _axes(ax: Axes | None, figsize=(6.0, 3.5)) -> tuple[Figure, Axes]:
+    if ax is not None:
+        return ax.figure, ax
+    fig, axes = new_figure(1, 1, figsize=figsize)
+    return fig, axes[0, 0]
+
+
+def plot_autocorrelation(acf: Autocorrelation, ax: Axes | None = None, title: str = "") -> Figure:
+    """Stem plot of ``ρ_k`` over the lag (ms) with the ``±1.96/√N`` band; Ljung–Box in the title."""
+    fig, ax = _axes(ax)
+    lag_ms = 1e3 * acf.lags * acf.dt
+    ax.vlines(lag_ms, 0.0, acf.values, color=RESIDUAL, lw=1.2)
+    ax.plot(lag_ms, acf.values, "o", color=RESIDUAL, ms=2.5)
+    ax.axhspan(-acf.band, acf.band, color="0.85", zorder=0, label="95 % band (white noise)")
+    ax.axhline(0.0, color="0.4", lw=0.8)
+    ax.set_xlabel("lag (ms)")
+    ax.set_ylabel("autocorrelation")
+    ax.set_title(f"{title} Ljung-Box Q = {acf.statistic:.3g}, p = {acf.p_value:.2g}".strip(),
+                 fontsize="medium")
+    ax.legend(loc="upper right", fontsize="small", frameon=False)
+    return fig
+
+
+def plot_cross_correlation(
+    xc: CrossCorrelation, ax: Axes | None = None, title: str = ""
+) -> Figure:
+    """Residual–torque correlation over lag (ms), the band and the peak lag."""
+    fig, ax = _axes(ax)
+    lag_ms = 1e3 * xc.lags * xc.dt
+    ax.plot(lag_ms, xc.values, color=RESIDUAL, lw=1.2)
+    ax.axhspan(-xc.band, xc.band, color="0.85", zorder=0, label="95 % band")
+    ax.axvline(0.0, color="0.4", lw=0.8)
+    ax.plot([1e3 * xc.peak_lag_s], [xc.peak_value], "o", color=MARK,
+            label=f"peak at {1e3 * xc.peak_lag_s:+.0f} ms")
+    ax.set_xlabel("lag (ms): residual after torque →")
+    ax.set_ylabel("cross-correlation")
+    ax.set_title(title or "residual vs torque", fontsize="medium")
+    ax.legend(loc="upper right", fontsize="small", frameon=False)
+    return fig
+
+
+def plot_spectrum(
+    spectrum: ResidualSpectrum,
+    ax: Axes | None = None,
+    title: str = "",
+    f_max: float | None = 120.0,
+    unit: str = "",
+) -> Figure:
+    """Residual PSD (log scale) with the white-noise floor and the peaks above it labelled."""
+    fig, ax = _axes(ax)
+    sel = spectrum.freqs > 0
+    if f_max is not None:
+        sel &= spectrum.freqs <= f_max
+    ax.semilogy(spectrum.freqs[sel], spectrum.psd[sel], color=RESIDUAL, lw=1.0, label="residual")
+    ax.axhline(spectrum.noise_psd, color="0.3", ls="--", lw=1.0, label="noise floor")
+    for f in spectrum.peaks_hz:
+        if f_max is None or f <= f_max:
+            k = int(np.argmin(np.abs(spectrum.freqs - f)))
+            ax.annotate(f"{f:.1f} Hz", (f, spectrum.psd[k]), textcoords="offset points",
+                        xytext=(3, 4), fontsize="x-small", color=MARK)
+    ax.set_xlabel("frequency (Hz)")
+    ax.set_ylabel(f"PSD ({unit}²/Hz)" if unit else "PSD")
+    ax.set_title(title or "residual spectrum", fontsize="medium")
+    ax.legend(loc="upper right", fontsize="small", frameon=False)
+    return fig
+
+
+def plot_localisation(loc: Localisation, ax: Axes | None = None, title: str = "") -> Figure:
+    """Horizontal bars of the misfit concentration (share of misfit / share of time).
+
+    A bar beyond 1 (the dashed line) marks a condition or time window where the misfit is
+    denser than on average.
+    """
+    fig, ax = _axes(ax, figsize=(6.0, 5.0))
+    items = list(loc.conditions) + list(loc.windows)
+    names = [c.condition for c in items]
+    values = [c.concentration for c in items]
+    colours = [MODEL] * len(loc.conditions) + ["0.55"] * len(loc.windows)
+    y = np.arange(len(items))[::-1]
+    ax.barh(y, values, color=colours)
+    ax.axvline(1.0, color="0.3", ls="--", lw=1.0)
+    ax.set_yticks(y, names, fontsize="x-small")
+    ax.set_xlabel("misfit concentration (share of misfit / share of time)")
+    ax.set_title(title or "where the misfit lies", fontsize="medium")
+    return fig
+
+
+def plot_diagnosis(diagnosis: Diagnosis, *, figsize=(13.0, 9.0), dpi: float = 100.0) -> Figure:
+    """One page: per channel the autocorrelation, cross-correlation and spectrum; localisation."""
+    channels = list(diagnosis.channels)
+    fig = Figure(figsize=figsize, dpi=dpi, layout="constrained")
+    grid = fig.add_gridspec(len(channels), 4)
+    for row, name in enumerate(channels):
+        c = diagnosis.channels[name]
+        label = _LABELS.get(name, name)
+        status = "consistent with noise" if c.consistent(diagnosis.alpha) else "misfit"
+        axes = [style(fig.add_subplot(grid[row, k])) for k in range(3)]
+        plot_autocorrelation(c.whiteness, axes[0], title=f"{label}:")
+        plot_cross_correlation(c.input_correlation, axes[1], title=f"{label} vs torque")
+        plot_spectrum(c.spectrum, axes[2], title=f"{label} ({status})")
+    ax = style(fig.add_subplot(grid[:, 3]))
+    plot_localisation(diagnosis.localisation, ax)
+    return fig
+
+
+def plot_error_falling(
+    labels: Sequence[str],
+    nrmse: Mapping[str, Sequence[float]],
+    *,
+    noise_floor: Mapping[str, float] | None = None,
+    frf_nrmse: Sequence[float] | None = None,
+    holdout: Mapping[str, Sequence[float]] | None = None,
+    figsize=(8.0, 4.5),
+    dpi: float = 100.0,
+) -> Figure:
+    """NRMSE (log scale) per model structure, one line per output; noise floors dashed.
+
+    ``labels`` name the steps (e.g. "base", "+ payload"); ``nrmse`` maps an output to one value
+    per step, as do ``frf_nrmse`` and ``holdout`` (held-out relative error in percent).
+    """
+    if not labels:
+        raise ValueError("plot_error_falling needs at least one step")
+    fig, axes = new_figure(1, 1, figsize=figsize, dpi=dpi)
+    ax = axes[0, 0]
+    x = np.arange(len(labels))
+    colours = {"joint_angle": MODEL, "tip_acceleration": RESIDUAL}
+    for name, values in nrmse.items():
+        if len(values) != len(labels):
+            raise ValueError(f"nrmse[{name!r}] has {len(values)} values for {len(labels)} steps")
+        colour = colours.get(name, MARK)
+        ax.semilogy(x, values, "o-", color=colour, label=f"{_LABELS.get(name, name)} NRMSE")
+        if noise_floor and name in noise_floor:
+            ax.axhline(noise_floor[name], color=colour, ls="--", lw=1.0,
+                       label=f"{_LABELS.get(name, name)} noise floor")
+    if frf_nrmse is not None:
+        ax.semilogy(x, frf_nrmse, "s-", color=MARK, label="FRF NRMSE")
+    for name, values in (holdout or {}).items():
+        ax.semilogy(x, values, "^:", color=colours.get(name, "0.4"),
+                    label=f"held-out {_LABELS.get(name, name)} error")
+    ax.set_xticks(x, labels, rotation=15)
+    ax.set_ylabel("error (%)")
+    ax.set_title("error as effects are added", fontsize="medium")
+    ax.legend(fontsize="small", frameon=False, loc="best")
+    return fig
+
+
+def plot_overlay(
+    record: Record,
+    before: Mapping[str, np.ndarray] | object,
+    after: Mapping[str, np.ndarray] | object,
+    *,
+    labels: tuple[str, str] = ("before", "after"),
+    outputs: Sequence[str] = OUTPUT_COLUMNS,
+    figsize=(9.0, 6.5),
+    dpi: float = 100.0,
+) -> Figure:
+    """Measured outputs of ``record`` against the model before and after, residuals below.
+
+    ``before`` and ``after`` are simulated outputs (:class:`~jaxflex.simulate.Outputs` or a
+    mapping channel → array).
+    """
+
+    def get(source, name):
+        value = source[name] if isinstance(source, Mapping) else getattr(source, name)
+        value = np.asarray(value, dtype=np.float64)
+        if value.shape != (record.n_samples,):
+            raise ValueError(f"{name} has shape {value.shape}, expected ({record.n_samples},)")
+        return value
+
+    fig, axes = new_figure(2 * len(outputs), 1, figsize=figsize, dpi=dpi, sharex=True,
+                           height_ratios=[3.0, 1.2] * len(outputs))
+    t = record.time
+    for k, name in enumerate(outputs):
+        measured = record.channel(name)
+        ax, ax_res = axes[2 * k, 0], axes[2 * k + 1, 0]
+        unit = record.units.get(name) or "-"
+        ax.plot(t, measured, color=MEASURED, lw=1.0, label="measured")
+        for source, label, colour, ls in ((before, labels[0], MODEL, ":"),
+                                          (after, labels[1], _AFTER, "--")):
+            model = get(source, name)
+            ax.plot(t, model, color=colour, lw=1.2, ls=ls, label=label)
+            ax_res.plot(t, measured - model, color=colour, lw=0.9, label=label)
+        ax.set_ylabel(f"{_LABELS.get(name, name)} ({unit})")
+        ax.legend(loc="best", fontsize="small", frameon=False)
+        ax_res.axhline(0.0, color="0.4", lw=0.6)
+        ax_res.set_ylabel("residual")
+    axes[-1, 0].set_xlabel("time (s)")
+    fig.suptitle(f"{record.name}: {labels[0]} vs {labels[1]}", fontsize="medium")
+    return fig
+
+
+__all__ = [
+    "plot_autocorrelation",
+    "plot_cross_correlation",
+    "plot_diagnosis",
+    "plot_error_falling",
+    "plot_localisation",
+    "plot_overlay",
+    "plot_spectrum",
+]
