@@ -1,0 +1,295 @@
+"""The identification objective: weighted least squares between simulated and measured outputs.
+
+For records ``r = 1..R`` with ``n_r`` samples and output channels ``c`` (joint angle, tip
+acceleration) with weights ``w_c`` (``W = Σ_c w_c``), the residual vector stacks
+
+    e_rct = s_rc · (ŷ_rc(t; θ) − y_rc(t)),      s_rc = √(w_c / (W·R·n_r)) / rms(y_rc),
+
+so the cost ``Σ e²`` is the weighted mean over records and channels of the squared normalised
+RMS error (``NRMSE²``, as a fraction): every channel counts in proportion to its weight whatever
+its unit, and every record counts the same whatever its length. The residual vector (for least
+squares) and the scalar cost (for the evolutionary search) share :meth:`Objective.residuals`.
+
+Parameters can be evaluated from three coordinates (:mod:`jaxflex.parameters`): physical values,
+the unit box ``u`` (evolutionary search) and unconstrained reals ``z`` (refinement). Only the
+free parameters are searched; ``fixed`` ones keep their given values.
+
+Records of equal length are stacked and simulated by one ``vmap``; groups of different length
+are simulated one after another inside the same traced function.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Iterable, Mapping, Sequence
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import numpy as np
+from jaxtyping import Array, ArrayLike, Float, Scalar
+
+from jaxflex.data import Dataset, Record
+from jaxflex.evolve._base import sanitize_fitness
+from jaxflex.model import Model
+from jaxflex.parameters import ParameterSpace, ParameterSpec, Params
+from jaxflex.simulate import OUTPUT_NAMES, simulate_core
+
+DEFAULT_CHANNELS: tuple[str, ...] = ("joint_angle", "tip_acceleration")
+
+Records = Dataset | Record | Iterable[Record]
+
+
+def as_dataset(records: Records) -> Dataset:
+    """A :class:`Dataset` from a data set, one record or an iterable of records.
+
+    Records with different sampling intervals are refused (by :class:`Dataset`).
+    """
+    if isinstance(records, Dataset):
+        dataset = records
+    elif isinstance(records, Record):
+        dataset = Dataset([records])
+    else:
+        dataset = Dataset(list(records))
+    if len(dataset) == 0:
+        raise ValueError("no records given: identification needs at least one record")
+    return dataset
+
+
+class Objective(eqx.Module):
+    """Normalised residuals and cost of a model over a set of records (see the module doc).
+
+    Build it with :func:`build_objective`. All methods are pure and traceable: use them inside
+    ``jit``/``vmap``/``grad``. The instance is a pytree, so two objectives with equally shaped
+    records share compiled code.
+    """
+
+    model: Model
+    specs: tuple[ParameterSpec, ...] = eqx.field(static=True)  # free parameters, search bounds
+    fixed: dict[str, Array]
+    channels: tuple[str, ...] = eqx.field(static=True)
+    weights: tuple[float, ...] = eqx.field(static=True)
+    record_names: tuple[str, ...] = eqx.field(static=True)
+    groups: tuple[tuple[int, ...], ...] = eqx.field(static=True)  # record indices per length
+    dt: float = eqx.field(static=True)
+    torque: tuple[Float[Array, "R n"], ...]  # per group
+    measured: tuple[Float[Array, "R C n"], ...]  # per group
+    scale: tuple[Float[Array, "R C"], ...]  # per group, s_rc of the module doc
+
+    # --- coordinates -----------------------------------------------------------------------
+    @property
+    def space(self) -> ParameterSpace:
+        """The free parameters with their search bounds."""
+        return ParameterSpace(self.specs)
+
+    @property
+    def names(self) -> tuple[str, ...]:
+        """Names of the free parameters, in search order."""
+        return tuple(s.name for s in self.specs)
+
+    @property
+    def dim(self) -> int:
+        return len(self.specs)
+
+    @property
+    def size(self) -> int:
+        """Length of the residual vector."""
+        return sum(int(np.prod(m.shape)) for m in self.measured)
+
+    def full(self, free: Mapping[str, ArrayLike]) -> Params:
+        """Free values plus the fixed ones: a parameter set for the model."""
+        return {**self.fixed, **{k: jnp.asarray(v) for k, v in free.items()}}
+
+    def from_unit(self, u: Float[ArrayLike, " d"]) -> Params:
+        return self.space.from_unit(u)
+
+    def from_unconstrained(self, z: Float[ArrayLike, " d"]) -> Params:
+        return self.space.from_unconstrained(z)
+
+    # --- residuals and cost ----------------------------------------------------------------
+    def simulate(self, params: Mapping[str, ArrayLike]) -> tuple[Float[Array, "R C n"], ...]:
+        """Simulated output channels per group of equally long records (free params only)."""
+        full = self.full(params)
+
+        def one(torque):
+            out = simulate_core(self.model, full, torque, self.dt)
+            return jnp.stack([out.channel(c) for c in self.channels])
+
+        return tuple(jax.vmap(one)(torque) for torque in self.torque)
+
+    def residuals(self, params: Mapping[str, ArrayLike]) -> Float[Array, " N"]:
+        """The normalised, weighted residual vector ``e`` (free parameters in physical units)."""
+        simulated = self.simulate(params)
+        parts = [
+            (s[..., None] * (y_sim - y)).reshape(-1)
+            for y_sim, y, s in zip(simulated, self.measured, self.scale, strict=True)
+        ]
+        return jnp.concatenate(parts)
+
+    def cost(self, params: Mapping[str, ArrayLike]) -> Scalar:
+        """``Σ e²``: the weighted mean squared NRMSE (a fraction, not percent)."""
+        r = self.residuals(params)
+        return jnp.sum(r**2)
+
+    def unit_residuals(self, u: Float[Array, " d"]) -> Float[Array, " N"]:
+        return self.residuals(self.from_unit(u))
+
+    def unit_cost(self, u: Float[Array, " d"]) -> Scalar:
+        return self.cost(self.from_unit(u))
+
+    def unconstrained_residuals(self, z: Float[Array, " d"], args: object = None) -> Array:
+        """Residuals at ``z = logit(u)`` (``args`` is ignored: optimistix's signature)."""
+        del args
+        return self.residuals(self.from_unconstrained(z))
+
+    def fitness(self, population: Float[Array, "P d"]) -> Float[Array, " P"]:
+        """Cost of every unit-box candidate, one vmapped call; non-finite → ``+inf``."""
+        return sanitize_fitness(jax.vmap(self.unit_cost)(population))
+
+    # --- layout (NumPy, for noise estimates and reports) ------------------------------------
+    def layout(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Per residual element: record index, channel index and its scale ``s_rc``."""
+        records, channels, scales = [], [], []
+        for group, measured, scale in zip(self.groups, self.measured, self.scale, strict=True):
+            r, c, n = measured.shape
+            idx_r = np.broadcast_to(np.asarray(group)[:, None, None], (r, c, n))
+            idx_c = np.broadcast_to(np.arange(c)[None, :, None], (r, c, n))
+            records.append(idx_r.reshape(-1))
+            channels.append(idx_c.reshape(-1))
+            scales.append(np.broadcast_to(np.asarray(scale)[..., None], (r, c, n)).reshape(-1))
+        return np.concatenate(records), np.concatenate(channels), np.concatenate(scales)
+
+
+def _check_weights(weights: Mapping[str, float] | None, channels: Sequence[str]) -> tuple:
+    weights = {} if weights is None else dict(weights)
+    unknown = sorted(set(weights) - set(channels))
+    if unknown:
+        raise ValueError(f"weights given for channel(s) {unknown} not fitted; channels: {channels}")
+    values = []
+    for c in channels:
+        w = weights.get(c, 1.0)
+        try:
+            w = float(w)
+        except (TypeError, ValueError):
+            raise ValueError(f"weight of channel {c!r} must be a number, got {w!r}") from None
+        if not (math.isfinite(w) and w >= 0):
+            raise ValueError(f"weight of channel {c!r} must be finite and >= 0, got {w!r}")
+        values.append(w)
+    if not any(w > 0 for w in values):
+        given = dict(zip(channels, values, strict=True))
+        raise ValueError(f"at least one channel weight must be positive, got {given}")
+    return tuple(values)
+
+
+def _free_specs(
+    space: ParameterSpace,
+    bounds: Mapping[str, tuple[float, float]] | None,
+    fixed: Mapping[str, ArrayLike] | None,
+) -> tuple[tuple[ParameterSpec, ...], dict[str, Array]]:
+    fixed = dict(fixed or {})
+    bounds = dict(bounds or {})
+    for label, given in (("fixed", fixed), ("bounds", bounds)):
+        unknown = sorted(set(given) - set(space.names))
+        if unknown:
+            raise ValueError(
+                f"{label} names unknown parameter(s) {unknown}; known parameters: "
+                f"{list(space.names)}"
+            )
+    both = sorted(set(fixed) & set(bounds))
+    if both:
+        raise ValueError(f"parameter(s) {both} are fixed and also given bounds; choose one")
+    for name, pair in bounds.items():
+        try:
+            lower, upper = (float(v) for v in pair)
+        except (TypeError, ValueError):
+            raise ValueError(
+                f"bounds for {name} must be a pair (lower, upper), got {pair!r}"
+            ) from None
+        if not lower < upper:  # ParameterSpec checks too; this names the argument
+            raise ValueError(
+                f"bounds for {name}: lower bound {lower!r} must be below upper bound {upper!r}"
+            )
+    space = space.with_bounds({k: tuple(map(float, v)) for k, v in bounds.items()})
+    values = {}
+    for name, value in fixed.items():
+        value = np.asarray(value, dtype=np.float64)
+        if value.shape != () or not np.isfinite(value):
+            raise ValueError(f"fixed value of {name} must be one finite number, got {value!r}")
+        values[name] = jnp.asarray(value)
+    free = tuple(s for s in space.specs if s.name not in fixed)
+    if not free:
+        raise ValueError("every parameter is fixed: nothing left to identify")
+    return free, values
+
+
+def build_objective(
+    records: Records,
+    model: Model | None = None,
+    *,
+    weights: Mapping[str, float] | None = None,
+    channels: Sequence[str] = DEFAULT_CHANNELS,
+    fixed: Mapping[str, ArrayLike] | None = None,
+    bounds: Mapping[str, tuple[float, float]] | None = None,
+) -> Objective:
+    """The objective of ``model`` (default: the reference testbed) over ``records``.
+
+    ``weights`` maps channel → weight (default 1 each); ``fixed`` maps parameter → value held
+    fixed; ``bounds`` maps parameter → ``(lower, upper)`` replacing its search bounds. Every
+    argument is validated and errors name the record, channel or parameter at fault.
+    """
+    model = Model() if model is None else model
+    if not isinstance(model, Model):
+        raise TypeError(f"model must be a jaxflex Model, got {type(model).__name__}")
+    dataset = as_dataset(records)
+    channels = (channels,) if isinstance(channels, str) else tuple(channels)
+    if not channels or len(set(channels)) != len(channels):
+        raise ValueError(f"channels must name distinct outputs, got {channels}")
+    for c in channels:
+        if c not in OUTPUT_NAMES:
+            raise ValueError(f"channel {c!r} is not a simulated output; outputs: {OUTPUT_NAMES}")
+    weight_values = _check_weights(weights, channels)
+    specs, fixed_values = _free_specs(model.space, bounds, fixed)
+    model.space.validate({**model.space.reference(), **fixed_values})
+
+    n_records = len(dataset)
+    total = sum(weight_values)
+    lengths: dict[int, list[int]] = {}
+    for i, record in enumerate(dataset):
+        lengths.setdefault(record.n_samples, []).append(i)
+    torque, measured, scale = [], [], []
+    for n, members in lengths.items():
+        ys, ss = [], []
+        for i in members:
+            record = dataset[i]
+            row, srow = [], []
+            for c, w in zip(channels, weight_values, strict=True):
+                y = record.channel(c)
+                rms = float(np.sqrt(np.mean(y**2)))
+                if not rms > 0:
+                    raise ValueError(
+                        f"record {record.name!r}: channel {c!r} is identically zero; it cannot "
+                        "be normalised by its RMS (drop the channel or the record)"
+                    )
+                row.append(y)
+                srow.append(math.sqrt(w / (total * n_records * n)) / rms)
+            ys.append(row)
+            ss.append(srow)
+        torque.append(jnp.asarray(np.stack([dataset[i].torque for i in members])))
+        measured.append(jnp.asarray(np.asarray(ys)))
+        scale.append(jnp.asarray(np.asarray(ss)))
+    return Objective(
+        model=model,
+        specs=specs,
+        fixed=fixed_values,
+        channels=channels,
+        weights=weight_values,
+        record_names=dataset.names,
+        groups=tuple(tuple(m) for m in lengths.values()),
+        dt=dataset.dt,
+        torque=tuple(torque),
+        measured=tuple(measured),
+        scale=tuple(scale),
+    )
+
+
+__all__ = ["DEFAULT_CHANNELS", "Objective", "as_dataset", "build_objective"]
