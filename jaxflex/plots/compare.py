@@ -196,19 +196,29 @@ def save_report(
     directory = Path(directory)
     if directory.exists() and not directory.is_dir():
         raise NotADirectoryError(f"{directory}: exists and is not a directory")
-    stems = [f"{_safe_stem(n)}_time" for n in comparison.names]
-    if len(set(stems)) != len(stems):
-        raise ValueError(f"record names {list(comparison.names)} map to clashing file names")
-    figures = [directory / f"{s}.{fmt}" for s in stems] + [directory / f"frf.{fmt}"]
-    targets = [directory / "table.txt", directory / "comparison.json", *figures]
+    targets = report_paths(comparison.names, directory, fmt)
     for path in targets:
         check_writable(path, overwrite)
+    figures = targets[2:]
     write_text(targets[0], comparison.table(), overwrite=overwrite)
     write_json(targets[1], comparison.to_dict(), overwrite=overwrite)
     for i, path in enumerate(figures[:-1]):
         save_figure(plot_time(comparison, i, dpi=dpi), path, overwrite=overwrite)
     save_figure(plot_frf(comparison, dpi=dpi), figures[-1], overwrite=overwrite)
     return tuple(targets)
+
+
+def report_paths(
+    names: Sequence[str], directory: str | os.PathLike, fmt: str = "png"
+) -> tuple[Path, ...]:
+    """The files :func:`save_report` writes for records ``names``: ``table.txt``,
+    ``comparison.json``, ``<record>_time.<fmt>`` for each record, then ``frf.<fmt>``."""
+    directory = Path(directory)
+    stems = [f"{_safe_stem(n)}_time" for n in names]
+    if len(set(stems)) != len(stems):
+        raise ValueError(f"record names {list(names)} map to clashing file names")
+    figures = [directory / f"{s}.{fmt}" for s in stems] + [directory / f"frf.{fmt}"]
+    return (directory / "table.txt", directory / "comparison.json", *figures)
 
 
 def _db(h: np.ndarray) -> np.ndarray:
@@ -222,4 +232,4 @@ def _safe_stem(name: str) -> str:
     return re.sub(r"[^\w.-]+", "_", name).strip("._") or "record"
 
 
-__all__ = ["plot_frf", "plot_time", "save_report"]
+__all__ = ["plot_frf", "plot_time", "report_paths", "save_report"]

@@ -1,0 +1,98 @@
+"""``jaxflex validate DATA.csv [...] --fit fit.json [--report DIR]``: the model against records.
+
+Simulates the fitted model under each record's measured torque, prints the Table-3-style table
+(NRMSE per output, FRF NRMSE, held-out relative error) and, with ``--report``, writes the table,
+``comparison.json`` and the figures (one time-domain figure per record and the FRF) into DIR.
+"""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+
+from jaxflex.cli import UsageError
+from jaxflex.compare import DEFAULT_T_END, FRFSettings, compare
+from jaxflex.data import Dataset, load_dataset, load_record
+
+HELP = "compare a fitted model with measured records: metrics table and figures"
+
+
+def register(subparsers: argparse._SubParsersAction) -> None:
+    p = subparsers.add_parser("validate", help=HELP, description=HELP)
+    p.add_argument("data", nargs="+", metavar="DATA",
+                   help="record files (.csv/.npz) or directories of them")
+    p.add_argument("--fit", required=True, metavar="FIT.json",
+                   help="fit file written by `jaxflex identify`")
+    p.add_argument("--report", metavar="DIR",
+                   help="write table.txt, comparison.json and the figures into DIR")
+    p.add_argument("--overwrite", action="store_true", help="replace existing report files")
+    p.add_argument("--format", choices=("png", "pdf", "svg"), default="png",
+                   help="figure file format (default: png)")
+    p.add_argument("--resample", action="store_true",
+                   help="resample records whose time column is not uniform")
+    p.add_argument("--t-end", type=float, default=DEFAULT_T_END, metavar="S",
+                   help="time-domain metrics over 0 <= t <= S seconds (default: %(default)s)")
+    p.add_argument("--f-max", type=float, default=15.0, metavar="HZ",
+                   help="upper end of the FRF comparison band (default: %(default)s Hz)")
+    p.add_argument("--raw-frf", action="store_true",
+                   help="compare every FRF bin of the band, also those with almost no input "
+                        "power (default: leave out bins more than 30 dB below the peak)")
+    p.add_argument("--encoder-counts", type=int, metavar="N",
+                   help="encoder counts per revolution, to report the noise floor")
+    p.add_argument("--accel-sigma", type=float, metavar="S",
+                   help="accelerometer noise standard deviation (m/s^2), for the noise floor")
+    p.set_defaults(func=run)
+
+
+def run(args: argparse.Namespace) -> int:
+    fit, model = _load_fit(Path(args.fit))
+    records = _load_records(args.data, resample=args.resample)
+    frf = FRFSettings(f_max=args.f_max, **({"min_input_db": None, "min_coherence": None}
+                                         if args.raw_frf else {}))
+    comparison = compare(
+        model,
+        fit.params,
+        records,
+        fit_names=[n for n in fit.record_names if n in records.names],
+        t_end=args.t_end,
+        frf=frf,
+        encoder_counts=args.encoder_counts,
+        accel_sigma=args.accel_sigma,
+    )
+    print(comparison.table(), end="")
+    if args.report:
+        from jaxflex.plots.compare import save_report
+
+        paths = save_report(comparison, args.report, overwrite=args.overwrite, fmt=args.format)
+        print(f"wrote {len(paths)} files to {args.report}: {', '.join(p.name for p in paths)}")
+    return 0
+
+
+def _load_fit(path: Path):
+    """The fit in ``path`` and its model, or a UsageError that says what is wrong with them."""
+    if not path.is_file():
+        raise UsageError(f"{path}: fit file not found (write one with `jaxflex identify`)")
+    from jaxflex.identify import load_fit
+
+    try:
+        fit = load_fit(path)
+        model = fit.model()  # unknown effects or testbed settings fail here
+        model.space.validate(fit.params)  # unknown or missing parameters fail here
+    except (ValueError, KeyError, TypeError) as exc:
+        message = str(exc.args[0] if isinstance(exc, KeyError) and exc.args else exc)
+        where = "" if message.startswith(str(path)) else f"{path}: "
+        raise UsageError(f"cannot use the fit: {where}{message}") from None
+    return fit, model
+
+
+def _load_records(paths: list[str], *, resample: bool) -> Dataset:
+    records = []
+    for name in paths:
+        path = Path(name)
+        if not path.exists():
+            raise UsageError(f"{path}: record file not found")
+        if path.is_dir():
+            records += list(load_dataset(path, resample=resample))
+        else:
+            records.append(load_record(path, resample=resample))
+    return Dataset(records)
