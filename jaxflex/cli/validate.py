@@ -12,7 +12,7 @@ from pathlib import Path
 
 from jaxflex.cli import UsageError
 from jaxflex.compare import DEFAULT_T_END, FRFSettings, compare
-from jaxflex.data import Dataset, load_dataset, load_record
+from jaxflex.data import Dataset, RecordError, load_dataset, load_record
 
 HELP = "compare a fitted model with measured records: metrics table and figures"
 
@@ -91,8 +91,11 @@ def _load_records(paths: list[str], *, resample: bool) -> Dataset:
         path = Path(name)
         if not path.exists():
             raise UsageError(f"{path}: record file not found")
-        if path.is_dir():
-            records += list(load_dataset(path, resample=resample))
-        else:
-            records.append(load_record(path, resample=resample))
+        try:
+            if path.is_dir():
+                records += list(load_dataset(path, resample=resample))
+            else:
+                records.append(load_record(path, resample=resample))
+        except RecordError as exc:  # speak the command line's language
+            raise UsageError(str(exc).replace("resample=True", "--resample")) from None
     return Dataset(records)
