@@ -138,7 +138,7 @@ def run_demo(
     """Run ``steps`` in order into the directory ``out``; returns the final state."""
     out = Path(out)
     if out.exists() and not out.is_dir():
-        raise NotADirectoryError(f"{out}: exists and is not a directory")
+        raise ValueError(f"{out}: exists and is not a directory")
     if isinstance(seed, bool) or not isinstance(seed, int) or seed < 0:
         raise ValueError(f"seed must be a non-negative integer, got {seed!r}")
     for path in planned_files(out):

@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 import scipy.signal as ss
 
-from jaxflex.compare import Comparison, FRFSettings, compare, noise_floor
+from jaxflex.compare import Comparison, FRFSettings, compare, fit_and_validate, noise_floor
 from jaxflex.data import Dataset, Record
 from jaxflex.metrics import nrmse
 from jaxflex.model import Model
@@ -214,3 +214,54 @@ def test_input_errors_name_the_problem(records):
         FRFSettings(min_input_db=10.0)
     with pytest.raises(ValueError, match="f_max"):
         FRFSettings(f_max=0.0)
+
+
+class _StubFit:
+    """Stands in for a Fit: the reference values, as if identified on ``record_names``."""
+
+    def __init__(self, record_names):
+        self.params = {k: float(v) for k, v in reference_parameters().items()}
+        self.record_names = record_names
+
+    def model(self):
+        return Model()
+
+
+def test_fit_and_validate_fits_only_the_named_records(monkeypatch, records):
+    calls = []
+
+    def fake_identify(fit_records, **kwargs):
+        calls.append((fit_records.names, kwargs))
+        return _StubFit(fit_records.names)
+
+    monkeypatch.setattr("jaxflex.identify.identify", fake_identify)
+    fit, c = fit_and_validate(records, "triangular", ["pulse"], generations=3, seed=5, **NOISE)
+    assert calls == [(("triangular",), {"generations": 3, "seed": 5})]
+    assert c.names == ("triangular", "pulse") and [r.role for r in c.rows] == ["fit", "held-out"]
+    assert c.noise == NOISE and c.params == fit.params
+    # validate_names defaults to every other record
+    _, c_all = fit_and_validate(records, ["triangular"])
+    assert c_all.names == records.names
+    with pytest.raises(ValueError, match=r"\['pulse'\] are both fitted and held out"):
+        fit_and_validate(records, ["pulse"], ["pulse", "half_sine"])
+    with pytest.raises(ValueError, match="at least one record"):
+        fit_and_validate(records, [])
+    with pytest.raises(KeyError, match="no record named 'pluse'"):
+        fit_and_validate(records, "pluse")
+
+
+@pytest.mark.slow
+def test_fit_on_triangular_validate_on_pulse_and_half_sine(records):
+    fit, c = fit_and_validate(
+        records, "triangular", population=24, generations=12, seed=0, intervals=False, **NOISE
+    )
+    assert fit.record_names == ("triangular",)
+    for name in ("E", "J_h", "tau_c"):
+        assert fit.params[name] == pytest.approx(float(reference_parameters()[name]), rel=5e-3)
+    for name in ("pulse", "half_sine"):
+        row = c[name]
+        assert row.role == "held-out"
+        for out in OUTPUTS:
+            assert row.nrmse[out] <= 1.3 * row.noise_floor[out], (name, out)
+        assert row.frf_nrmse <= 2.0 * row.noise_floor["frf"]
+    assert "held-out" in c.table()

@@ -195,7 +195,7 @@ def save_report(
     """
     directory = Path(directory)
     if directory.exists() and not directory.is_dir():
-        raise NotADirectoryError(f"{directory}: exists and is not a directory")
+        raise ValueError(f"{directory}: exists and is not a directory")
     targets = report_paths(comparison.names, directory, fmt)
     for path in targets:
         check_writable(path, overwrite)
