@@ -67,6 +67,8 @@ LIMIT_UNITS: dict[str, str] = {
 PAPER_INPUTS: tuple[str, ...] = tuple(REFERENCE_AMPLITUDES)
 RESCALE_STEPS = 4
 """Fixed-point steps of the torque scale for the angle and speed limits."""
+MAX_BACKTRACKS = 12
+"""Step halvings tried before the ascent stops (a step 4096 times shorter than the last)."""
 _Z95 = 1.959963984540054  # standard normal 97.5 % quantile
 
 
@@ -293,8 +295,17 @@ def _criterion_of_fisher(fisher: Array, criterion: str) -> Array:
     return jnp.log(jnp.linalg.eigvalsh(fisher)[0])
 
 
-def _criterion(problem: _Problem, c: Array) -> tuple[Array, Array]:
-    """Criterion of coefficients ``c`` and the achieved (peak, RMS, angle, speed)."""
+class _Evaluation(eqx.Module):
+    """What one evaluation of a design yields besides the criterion."""
+
+    torque: Float[Array, " n"]
+    achieved: Float[Array, " 4"]  # peak torque, RMS torque, max |θ|, max |θ'|
+    fisher: Float[Array, "d d"]
+    response: Outputs
+
+
+def _criterion(problem: _Problem, c: Array) -> tuple[Array, _Evaluation]:
+    """Criterion of coefficients ``c``, with the torque, its limits, ``F`` and the response."""
     torque = _scaled_torque(problem, c)
     fisher, out = _fisher(
         problem.model,
@@ -313,14 +324,12 @@ def _criterion(problem: _Problem, c: Array) -> tuple[Array, Array]:
             jnp.max(jnp.abs(out.joint_velocity)),
         ]
     )
-    return _criterion_of_fisher(fisher, problem.criterion), achieved
+    value = _criterion_of_fisher(fisher, problem.criterion)
+    return value, _Evaluation(torque, achieved, fisher, out)
 
 
-_value = eqx.filter_jit(_criterion)
-_value_and_grad = eqx.filter_jit(
-    lambda problem, c: jax.value_and_grad(lambda c_: _criterion(problem, c_)[0])(c)
-)
-_torque = eqx.filter_jit(_scaled_torque)
+# one compiled program per problem structure: value, gradient and everything else at once
+_evaluate = eqx.filter_jit(jax.value_and_grad(_criterion, argnums=1, has_aux=True))
 
 
 # --- the design --------------------------------------------------------------------------------
@@ -447,38 +456,32 @@ def design_input(
     phases = np.random.default_rng(seed).uniform(0.0, 2.0 * np.pi, harmonics)
     c = jnp.asarray(np.concatenate([np.cos(phases), np.sin(phases)]))
     radius = float(jnp.linalg.norm(c))
-    value, achieved = _value(problem, c)
-    if not _feasible(achieved, problem.limits):
+    (value, evaluation), grad = _evaluate(problem, c)
+    if not _feasible(evaluation.achieved, problem.limits):
         raise ValueError(
             "the start of the design violates a limit after scaling: "
-            f"{_describe(achieved, limits)}; loosen max_angle or max_speed"
+            f"{_describe(evaluation.achieved, limits)}; loosen max_angle or max_speed"
         )
-    value, grad = _value_and_grad(problem, c)
     history = [float(value)]
     step = 0.3
     bar = Progress(range(iterations), label=f"design {criterion}", enabled=progress)
     for _ in bar:
         direction = grad * (radius / jnp.maximum(jnp.linalg.norm(grad), 1e-300))
-        for _ in range(30):
+        for _ in range(MAX_BACKTRACKS):
             trial = c + step * direction
             trial = trial * (radius / jnp.linalg.norm(trial))  # the scale is free: stay on a sphere
-            trial_value, achieved = _value(problem, trial)
-            if float(trial_value) > history[-1] and _feasible(achieved, problem.limits):
+            (value, trial_evaluation), trial_grad = _evaluate(problem, trial)
+            if float(value) > history[-1] and _feasible(trial_evaluation.achieved, problem.limits):
                 break
             step *= 0.5
         else:
             break  # no ascent step: a (local) optimum
-        c = trial
-        value, grad = _value_and_grad(problem, c)
+        c, evaluation, grad = trial, trial_evaluation, trial_grad
         history.append(float(value))
         step = min(2.0 * step, 1.0)
         bar.set_message(f"{criterion} {history[-1]:.4g}")
 
-    torque = np.asarray(_torque(problem, c))
-    out = simulate(model, values, torque, dt)
-    fisher = _fisher_jit(
-        model, values, jnp.asarray(torque), jnp.asarray(sigmas), names, dt, channels
-    )
+    out = evaluation.response
     settings = {
         "duration": duration,
         "dt": dt,
@@ -492,15 +495,15 @@ def design_input(
     }
     return DesignResult(
         time=time_grid(duration, dt),
-        torque=torque,
+        torque=np.asarray(evaluation.torque),
         joint_angle=np.asarray(out.joint_angle),
         tip_acceleration=np.asarray(out.tip_acceleration),
         joint_velocity=np.asarray(out.joint_velocity),
         coefficients=np.asarray(c),
         criterion=criterion,
         history=np.asarray(history),
-        intervals=intervals_from_fisher(np.asarray(fisher), names),
-        achieved=response_limits(model, values, torque, dt),
+        intervals=intervals_from_fisher(np.asarray(evaluation.fisher), names),
+        achieved=dict(zip(LIMITS, np.asarray(evaluation.achieved).tolist(), strict=True)),
         limits=limits,
         nominal={k: float(v) for k, v in values.items()},
         settings=settings,
