@@ -429,22 +429,26 @@ def warm_start(
 ) -> Float[np.ndarray, "P d"]:
     """An initial population in unit-box coordinates of ``space`` for ``evolve.run``.
 
-    J_h, b_v and tau_c are drawn uniformly within ``±spread`` (unit-box width) of the estimate
-    (clipped into the bounds, so an estimate on or beyond a bound seeds the edge of the box);
-    every other parameter (E, alpha, beta, effects) is spread uniformly over its whole range.
+    J_h, b_v and tau_c are drawn uniformly within ``±spread`` (unit-box width) of the estimate,
+    clipped into the box; a value the estimate left on a physical constraint (e.g. ``b_v = 0``:
+    the records do not resolve it) says nothing about where it lies, so such a parameter is
+    spread over its whole range like every other one (E, alpha, beta, effects).
     """
     if not (isinstance(population, (int, np.integer)) and population >= 1):
         raise ValueError(f"population must be an int >= 1, got {population!r}")
     if not (math.isfinite(spread) and 0 < spread <= 1):
         raise ValueError(f"spread={spread!r} must be in (0, 1] (a width in the unit box)")
-    known = {k: v for k, v in estimate.parameters().items() if k in space.names}
-    if not known:
-        raise ValueError(f"space {list(space.names)} has none of J_h, b_v, tau_c")
+    on_constraint = {"J_h" if a == "J_tot" else a for a in estimate.active}
+    known = {
+        k: v
+        for k, v in estimate.parameters().items()
+        if k in space.names and k not in on_constraint
+    }
     rng = np.random.default_rng(seed)
     u = rng.uniform(0.0, 1.0, (int(population), len(space)))
-    centre = space.reference() | {
-        k: jnp.asarray(max(v, 1e-300), dtype=jnp.float64) for k, v in known.items()
-    }
+    if not known:
+        return u
+    centre = space.reference() | {k: jnp.asarray(v, dtype=jnp.float64) for k, v in known.items()}
     u0 = np.clip(np.asarray(space.to_unit(centre)), 0.0, 1.0)
     for name in known:
         i = space.names.index(name)

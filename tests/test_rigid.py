@@ -213,26 +213,26 @@ def test_rigid_model_is_the_first_rung(paper_records):
 
 def test_warm_start_population(paper_records):
     estimate = estimate_rigid(paper_records, offset=False)
+    assert estimate.active == ("b_v",)  # b_v unresolved by these records: not narrowed
     space = Model().space
     pop = warm_start(estimate, space, 64, spread=0.05, seed=3)
     assert pop.shape == (64, len(space))
     assert np.all((pop >= 0) & (pop <= 1))
     np.testing.assert_array_equal(pop, warm_start(estimate, space, 64, spread=0.05, seed=3))
     centre = np.asarray(
-        space.to_unit(
-            space.reference()
-            | {
-                "J_h": estimate.J_h,
-                "tau_c": estimate.tau_c,
-                "b_v": 1e-300,
-            }
-        )
-    ).clip(0, 1)
-    for name in ("J_h", "tau_c", "b_v"):
+        space.to_unit(space.reference() | {"J_h": estimate.J_h, "tau_c": estimate.tau_c})
+    )
+    for name in ("J_h", "tau_c"):
         i = space.names.index(name)
         assert np.all(np.abs(pop[:, i] - centre[i]) <= 0.05 + 1e-12), name
-    for name in ("E", "alpha", "beta"):
+        assert np.ptp(pop[:, i]) > 0.08, name  # spread over the ±0.05 window
+    for name in ("E", "b_v", "alpha", "beta"):
         assert pop[:, space.names.index(name)].std() > 0.2, name  # uniform over the box
+    # the narrowed window holds the true values (estimate within a few % of them)
+    truth = np.asarray(space.to_unit(space.reference()))
+    for name in ("J_h", "tau_c"):
+        i = space.names.index(name)
+        assert pop[:, i].min() < truth[i] < pop[:, i].max(), name
     # it is a valid seed for the evolutionary search
     result = run(
         get_strategy("de", population=64),
