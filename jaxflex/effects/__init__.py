@@ -1,0 +1,70 @@
+"""The library of physical effects a model can be extended with, and its registry.
+
+Every module of this package (other than the private ones) defines effects; importing the
+package collects each :class:`Effect` subclass with its own ``name`` into :data:`EFFECTS`, so a
+new effect is one new file here and nothing else.
+"""
+
+from __future__ import annotations
+
+import importlib
+import inspect
+import pkgutil
+
+from jaxflex.effects._base import Effect, Structure, joint_friction
+from jaxflex.effects.delay import Delay
+from jaxflex.effects.gravity import Gravity
+from jaxflex.effects.motor_lag import MotorLag
+from jaxflex.effects.payload import Payload
+from jaxflex.effects.root_compliance import RootCompliance
+from jaxflex.effects.stribeck import Stribeck
+
+
+def _collect() -> dict[str, type[Effect]]:
+    """Effect classes defined in this package's public modules, by name."""
+    found: dict[str, type[Effect]] = {}
+    for info in sorted(pkgutil.iter_modules(__path__), key=lambda m: m.name):
+        if info.name.startswith("_"):
+            continue
+        module = importlib.import_module(f"{__name__}.{info.name}")
+        for _, cls in inspect.getmembers(module, inspect.isclass):
+            if issubclass(cls, Effect) and cls.__module__ == module.__name__:
+                if cls.name in found:
+                    raise RuntimeError(
+                        f"effect name {cls.name!r} is used by {found[cls.name].__name__} "
+                        f"and {cls.__name__}"
+                    )
+                found[cls.name] = cls
+    return found
+
+
+#: Effect name → class, for every effect in the library.
+EFFECTS: dict[str, type[Effect]] = _collect()
+
+
+def get_effect(name: str, **kwargs) -> Effect:
+    """An effect by name, built with ``kwargs`` (e.g. ``get_effect("payload", rotary=True)``)."""
+    if name not in EFFECTS:
+        raise ValueError(f"unknown effect {name!r}; known effects: {sorted(EFFECTS)}")
+    return EFFECTS[name](**kwargs)
+
+
+def library() -> tuple[Effect, ...]:
+    """One default instance of every effect in the library (in name order)."""
+    return tuple(cls() for _, cls in sorted(EFFECTS.items()))
+
+
+__all__ = [
+    "EFFECTS",
+    "Delay",
+    "Effect",
+    "Gravity",
+    "MotorLag",
+    "Payload",
+    "RootCompliance",
+    "Stribeck",
+    "Structure",
+    "get_effect",
+    "joint_friction",
+    "library",
+]
