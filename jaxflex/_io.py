@@ -1,4 +1,4 @@
-"""Safe file output: atomic writes that never overwrite a user's file by accident, and provenance."""
+"""Safe file output: atomic writes that never overwrite a user's file unasked; provenance."""
 
 from __future__ import annotations
 

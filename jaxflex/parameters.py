@@ -58,8 +58,14 @@ class ParameterSpec:
     def with_bounds(self, lower: float, upper: float) -> ParameterSpec:
         """A copy with new bounds (validated)."""
         return ParameterSpec(
-            self.name, self.unit, lower, upper, self.reference, self.description,
-            self.log_scale, self.null,
+            self.name,
+            self.unit,
+            lower,
+            upper,
+            self.reference,
+            self.description,
+            self.log_scale,
+            self.null,
         )
 
 
@@ -182,7 +188,9 @@ class ParameterSpace:
         """Raise a ValueError naming each missing, unknown, non-finite or non-positive value."""
         unknown = sorted(set(params) - set(self.names))
         if unknown:
-            raise ValueError(f"unknown parameter(s) {unknown}; known parameters: {list(self.names)}")
+            raise ValueError(
+                f"unknown parameter(s) {unknown}; known parameters: {list(self.names)}"
+            )
         missing = [n for n in self.names if n not in params]
         if missing:
             raise ValueError(f"parameter value(s) missing for {missing}")

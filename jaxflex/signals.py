@@ -68,7 +68,9 @@ def multisine(
         phases = np.random.default_rng(seed).uniform(0, 2 * np.pi, freqs.size)
     phases = np.asarray(phases, dtype=np.float64)
     if phases.shape != freqs.shape:
-        raise ValueError(f"phases must have the shape of frequencies {freqs.shape}, got {phases.shape}")
+        raise ValueError(
+            f"phases must have the shape of frequencies {freqs.shape}, got {phases.shape}"
+        )
     signal = np.sin(2 * np.pi * freqs[:, None] * t[None, :] + phases[:, None]).sum(axis=0)
     ramp = np.clip(t / max(0.05 * t[-1], 1e-12), 0.0, 1.0)
     signal = ramp * signal

@@ -32,7 +32,8 @@ from jaxflex.modal import Modes, free_hub_modes
 from jaxflex.model import Model
 from jaxflex.parameters import Params
 
-NEWTON_ITERATIONS = 10
+NEWTON_ITERATIONS = 4
+SCAN_UNROLL = 1
 #: Weight of the end-of-step friction (θ-method): 0.5 is trapezoidal, 1 backward Euler.
 FRICTION_THETA = 0.55
 
@@ -130,6 +131,7 @@ def _joint_velocity_solve(friction, target: Array, gain: Array, guess: Array) ->
 
     ``f`` is any friction law with ``f(0) = 0`` and ``sign f(v) = sign v``, so the root lies
     between 0 and ``target``; Newton steps that leave that bracket fall back to bisection.
+    The iterations are unrolled (a fixed, small count) so XLA fuses them with the step.
     """
 
     def residual_and_slope(v):
@@ -139,20 +141,14 @@ def _joint_velocity_solve(friction, target: Array, gain: Array, guess: Array) ->
     lo = jnp.minimum(0.0, target)
     hi = jnp.maximum(0.0, target)
     v = jnp.clip(guess, lo, hi)
-
-    def body(_, carry):
-        v, lo, hi = carry
-        r, slope = residual_and_slope(v)
+    v, lo, hi = jax.lax.stop_gradient((v, lo, hi))
+    for _ in range(NEWTON_ITERATIONS):
+        r, slope = jax.lax.stop_gradient(residual_and_slope(v))
         lo = jnp.where(r < 0.0, v, lo)
         hi = jnp.where(r > 0.0, v, hi)
         newton = v - r / jnp.where(slope > 0.0, slope, 1.0)
         ok = (slope > 0.0) & (newton > lo) & (newton < hi)
-        return jnp.where(ok, newton, 0.5 * (lo + hi)), lo, hi
-
-    v, _, _ = jax.lax.fori_loop(
-        0, NEWTON_ITERATIONS, body, jax.lax.stop_gradient((v, lo, hi))
-    )
-    v = jax.lax.stop_gradient(v)
+        v = jnp.where(ok, newton, 0.5 * (lo + hi))
     r, slope = residual_and_slope(v)
     return v - r / jax.lax.stop_gradient(slope)  # implicit-function gradient
 
@@ -170,14 +166,15 @@ class _ModalSystem(eqx.Module):
     load_modal: Array  # (k, m) modal force of each load shape
     tip: Array  # (m,) w(L) per mode
     root_curvature: Array  # (m,) w''(0) per mode
+    initial: tuple[Array, Array]  # (θ_r, η) at rest under the loads
 
 
-def _modal_system(model: Model, params: Params, h: float) -> tuple[_ModalSystem, Modes, Array]:
+def _modal_system(model: Model, params: Params, h: float) -> _ModalSystem:
     structure = model.structure(params)
     modes = free_hub_modes(structure)
     damping = modes.modal_damping(params["alpha"], params["beta"])
     loads = model.loads(structure, params)
-    system = _ModalSystem(
+    return _ModalSystem(
         maps=oscillator_step(modes.omega, damping, h),
         damping=damping,
         omega2=modes.omega**2,
@@ -188,78 +185,73 @@ def _modal_system(model: Model, params: Params, h: float) -> tuple[_ModalSystem,
         load_modal=modes.project(loads),
         tip=modes.project(structure.tip),
         root_curvature=modes.project(structure.root_curvature),
+        initial=_rest_under_loads(model, params, structure, modes, loads),
     )
-    return system, modes, loads
 
 
-def _initial_state(model: Model, params: Params, system: _ModalSystem, modes: Modes, loads, structure):
-    """Rest at θ = 0 with the beam in static equilibrium under the loads (hub held)."""
+def _rest_under_loads(model: Model, params: Params, structure, modes: Modes, loads):
+    """Modal coordinates of rest at θ = 0 with the beam deflected statically by the loads."""
     amplitude = model.load_amplitudes(params, jnp.zeros(()), jnp.zeros(()))
-    force = amplitude @ loads  # (n,)
-    stiffness = structure.stiffness[1:, 1:]
-    q_elastic = jnp.linalg.solve(stiffness, force[1:])
+    force = amplitude @ loads
+    q_elastic = jnp.linalg.solve(structure.stiffness[1:, 1:], force[1:])
     q0 = jnp.concatenate([jnp.zeros(1), q_elastic])
     eta = modes.project(structure.mass @ q0)
-    theta_r = -system.hub @ eta
-    zero = jnp.zeros(())
-    return (theta_r, zero, eta, jnp.zeros_like(eta))
+    return -modes.hub @ eta, eta
 
 
-def simulate_core(
-    model: Model, params: Params, torque: Float[Array, " n"], dt: float
-) -> Outputs:
+def simulate_core(model: Model, params: Params, torque: Float[Array, " n"], dt: float) -> Outputs:
     """Simulate one parameter set; pure and traceable (no input checks). See :func:`simulate`."""
     n_sub = model.n_substeps
     h = dt / n_sub
-    structure = model.structure(params)
-    system, modes, loads = _modal_system(model, params, h)
+    system = _modal_system(model, params, h)
     maps = system.maps
     p, J = system.hub, system.inertia
-    length = structure.length
+    length = model.testbed.length
     thickness = model.testbed.thickness
+    w = FRICTION_THETA
     gain = h / J + jnp.sum(p**2 * maps.gv)  # d θ'_{k+1} / d u over one step
+    gx_p, gv_p = maps.gx * p, maps.gv * p
+    p2 = p**2
 
     def friction(v):
         return model.friction(params, v)
 
-    def explicit_forces(theta, vel, deta):
-        """Rigid acceleration and modal force from the loads and the off-diagonal coupling."""
+    def explicit_forces(theta, vel, vel_r, deta):
+        """Rigid acceleration and modal force: loads and the off-diagonal mass damping."""
         amp = model.load_amplitudes(params, theta, vel)
         rigid = (amp @ system.load_hub) / J
-        modal = amp @ system.load_modal - system.coupling * (p * (p @ deta) - p**2 * deta)
+        flex_velocity = vel - vel_r  # pᵀη'
+        modal = amp @ system.load_modal - system.coupling * (p * flex_velocity - p2 * deta)
         return rigid, modal
 
     def substep(state, tau):
-        theta_r, vel_r, eta, deta = state
-        theta = theta_r + p @ eta
-        vel = vel_r + p @ deta
-        rigid, modal = explicit_forces(theta, vel, deta)
+        theta_r, vel_r, eta, deta, vel, f_vel = state
+        rigid, modal = explicit_forces(theta_r + p @ eta, vel, vel_r, deta)
         eta_free = maps.p11 * eta + maps.p12 * deta + maps.gx * modal
         deta_free = maps.p21 * eta + maps.p22 * deta + maps.gv * modal
         vel_r_free = vel_r + h * rigid
         theta_r_free = theta_r + h * vel_r + 0.5 * h**2 * rigid
-        free_velocity = vel_r_free + p @ deta_free
-        f_start = friction(vel)
-        w = FRICTION_THETA
-        target = free_velocity + gain * (tau - (1.0 - w) * f_start)
-        v_end = _joint_velocity_solve(friction, target, w * gain, vel)
-        u = tau - w * friction(v_end) - (1.0 - w) * f_start
+        target = vel_r_free + p @ deta_free + gain * (tau - (1.0 - w) * f_vel)
+        guess = target - w * gain * f_vel
+        v_end = _joint_velocity_solve(friction, target, w * gain, guess)
+        f_end = friction(v_end)
+        u = tau - w * f_end - (1.0 - w) * f_vel
         return (
             theta_r_free + 0.5 * h**2 * u / J,
             vel_r_free + h * u / J,
-            eta_free + maps.gx * p * u,
-            deta_free + maps.gv * p * u,
+            eta_free + gx_p * u,
+            deta_free + gv_p * u,
+            v_end,
+            f_end,
         )
 
     def outputs(state, tau):
-        theta_r, vel_r, eta, deta = state
+        theta_r, vel_r, eta, deta, vel, f_vel = state
         theta = theta_r + p @ eta
-        vel = vel_r + p @ deta
-        u = tau - friction(vel)
-        rigid, modal = explicit_forces(theta, vel, deta)
-        acc_r = rigid + u / J
+        u = tau - f_vel
+        rigid, modal = explicit_forces(theta, vel, vel_r, deta)
         ddeta = p * u + modal - system.damping * deta - system.omega2 * eta
-        acc = acc_r + p @ ddeta
+        acc = rigid + u / J + p @ ddeta
         return (
             theta,
             length * acc + system.tip @ ddeta,
@@ -278,8 +270,10 @@ def simulate_core(
             state = substep(state, taus[j])
         return state, out
 
-    state0 = _initial_state(model, params, system, modes, loads, structure)
-    _, out = jax.lax.scan(sample, state0, fine)
+    theta_r0, eta0 = system.initial
+    vel0 = jnp.zeros_like(theta_r0)
+    state0 = (theta_r0, vel0, eta0, jnp.zeros_like(eta0), vel0, friction(vel0))
+    _, out = jax.lax.scan(sample, state0, fine, unroll=SCAN_UNROLL)
     return Outputs(*out)
 
 
@@ -299,7 +293,9 @@ def _check_inputs(model: Model, params: Mapping[str, ArrayLike], torque, dt, bat
         raise ValueError(f"dt must be a positive number of seconds, got {dt!r}")
     torque = np.asarray(torque, dtype=np.float64)
     if torque.ndim != 1 or torque.shape[0] < 2:
-        raise ValueError(f"torque must be a 1-D array of at least 2 samples, got shape {torque.shape}")
+        raise ValueError(
+            f"torque must be a 1-D array of at least 2 samples, got shape {torque.shape}"
+        )
     if not np.all(np.isfinite(torque)):
         bad = int(np.flatnonzero(~np.isfinite(torque))[0])
         raise ValueError(f"torque is not finite at sample {bad}")
@@ -311,7 +307,9 @@ def _check_inputs(model: Model, params: Mapping[str, ArrayLike], torque, dt, bat
         if len(sizes) != 1 or None in sizes:
             raise ValueError(f"batched parameters must all be 1-D of one length, got {shapes}")
     elif any(s != () for s in shapes.values()):
-        raise ValueError(f"parameters must be scalars (use simulate_batch for arrays), got {shapes}")
+        raise ValueError(
+            f"parameters must be scalars (use simulate_batch for arrays), got {shapes}"
+        )
     return values, jnp.asarray(torque), float(dt)
 
 

@@ -12,7 +12,15 @@ import importlib
 import sys
 from collections.abc import Sequence
 
-COMMANDS: tuple[str, ...] = ("simulate", "identify", "study", "validate", "discover", "design", "demo")
+COMMANDS: tuple[str, ...] = (
+    "simulate",
+    "identify",
+    "study",
+    "validate",
+    "discover",
+    "design",
+    "demo",
+)
 
 
 class UsageError(ValueError):
