@@ -27,7 +27,7 @@ import textwrap
 import warnings
 from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass, field
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 from jaxtyping import ArrayLike, Bool, Complex, Float
@@ -43,6 +43,9 @@ ROLES = ("fit", "held-out")
 """A record was used to fit the parameters, or held out to validate them."""
 DEFAULT_T_END = 2.0
 """Time-domain metrics cover ``0 ≤ t ≤ 2 s`` of each record (the spec's window)."""
+
+if TYPE_CHECKING:
+    from jaxflex.identify import Fit
 
 _SHORT = {"joint_angle": "angle", "tip_acceleration": "tip acc"}
 
@@ -212,35 +215,38 @@ class Comparison:
 
     def to_dict(self) -> dict[str, Any]:
         """Everything but the arrays, as plain JSON values (NaN as None, with provenance)."""
-        return to_jsonable({
-            "params": dict(self.params),
-            "effects": list(self.effects),
-            "model_resonances_hz": list(self.resonances_hz),
-            "settings": {
-                "t_end_s": self.t_end,
-                "frf": {
-                    "f_max_hz": self.frf_settings.f_max,
-                    "nperseg": self.frf_settings.nperseg,
-                    "window": self.frf_settings.window,
-                    "min_input_db": self.frf_settings.min_input_db,
-                    "min_coherence": self.frf_settings.min_coherence,
-                    "compared_bins": self.frf_settings.describe(),
+        return to_jsonable(
+            {
+                "params": dict(self.params),
+                "effects": list(self.effects),
+                "model_resonances_hz": list(self.resonances_hz),
+                "settings": {
+                    "t_end_s": self.t_end,
+                    "frf": {
+                        "f_max_hz": self.frf_settings.f_max,
+                        "nperseg": self.frf_settings.nperseg,
+                        "window": self.frf_settings.window,
+                        "min_input_db": self.frf_settings.min_input_db,
+                        "min_coherence": self.frf_settings.min_coherence,
+                        "compared_bins": self.frf_settings.describe(),
+                    },
+                    "noise": dict(self.noise),
                 },
-                "noise": dict(self.noise),
-            },
-            "records": [r.to_dict() for r in self.rows],
-            "mean_held_out": {
-                "nrmse_percent": self.mean("nrmse"),
-                "relative_error": self.mean("relative_error"),
-            },
-            "provenance": provenance(),
-        })
+                "records": [r.to_dict() for r in self.rows],
+                "mean_held_out": {
+                    "nrmse_percent": self.mean("nrmse"),
+                    "relative_error": self.mean("relative_error"),
+                },
+                "provenance": provenance(),
+            }
+        )
 
     def _index(self, key: int | str) -> int:
         if isinstance(key, str):
             if key not in self.names:
-                raise KeyError(f"no record named {key!r} in the comparison; records: "
-                               f"{list(self.names)}")
+                raise KeyError(
+                    f"no record named {key!r} in the comparison; records: {list(self.names)}"
+                )
             return self.names.index(key)
         if not -len(self.rows) <= key < len(self.rows):
             raise IndexError(f"record index {key} out of range for {len(self.rows)} record(s)")
@@ -267,9 +273,11 @@ def compare(
     """Simulate ``model`` at ``params`` under each record's torque and compute every metric.
 
     Records named in ``fit_names`` get the role 'fit', the others 'held-out'. ``t_end`` bounds
-    the time-domain window (``None``: the whole record). Give the sensor noise
-    (``encoder_counts`` per revolution, accelerometer ``accel_sigma`` in m/s²) when it is known,
-    e.g. for synthetic records, to report the noise floor next to each metric.
+    the time-domain window (``None``: the whole record). ``frf`` sets the FRF estimate and the
+    bins its NRMSE compares (default: leave out bins with input power more than 30 dB below
+    the band maximum, see :class:`FRFSettings`; ``frf_nrmse_raw`` keeps every bin). Give the
+    sensor noise (``encoder_counts`` per revolution, accelerometer ``accel_sigma`` in m/s²) when
+    it is known, e.g. for synthetic records, to report the noise floor next to each metric.
     """
     dataset = _as_dataset(records)
     if not len(dataset):
@@ -277,8 +285,9 @@ def compare(
     fit_names = {fit_names} if isinstance(fit_names, str) else set(fit_names)
     unknown = sorted(fit_names - set(dataset.names))
     if unknown:
-        raise ValueError(f"fit_names {unknown} are not records of the comparison; records: "
-                         f"{list(dataset.names)}")
+        raise ValueError(
+            f"fit_names {unknown} are not records of the comparison; records: {list(dataset.names)}"
+        )
     if t_end is not None and not (math.isfinite(t_end) and t_end > 0):
         raise ValueError(f"t_end={t_end!r} must be a positive time in seconds (or None)")
     settings = FRFSettings() if frf is None else frf
@@ -324,7 +333,7 @@ def fit_and_validate(
     encoder_counts: int | None = None,
     accel_sigma: float | None = None,
     **identify_kwargs: Any,
-) -> tuple[Any, Comparison]:
+) -> tuple[Fit, Comparison]:
     """Identify on the records named ``fit_names``, then compare on those and the held-out ones.
 
     ``validate_names`` defaults to every other record. ``identify_kwargs`` go to
@@ -340,8 +349,10 @@ def fit_and_validate(
     held_out = rest if validate_names is None else dataset.split(validate_names)[0]
     overlap = sorted(set(fit_set.names) & set(held_out.names))
     if overlap:
-        raise ValueError(f"records {overlap} are both fitted and held out; a held-out record "
-                         "must not be used in the fit")
+        raise ValueError(
+            f"records {overlap} are both fitted and held out; a held-out record "
+            "must not be used in the fit"
+        )
     fit = identify(fit_set, **identify_kwargs)
     comparison = compare(
         fit.model(),
@@ -373,8 +384,10 @@ def noise_floor(
     window = _time_window(record, t_end)
     floor = {}
     if encoder_counts is not None:
-        if isinstance(encoder_counts, bool) or int(encoder_counts) != encoder_counts or (
-            encoder_counts < 1
+        if (
+            isinstance(encoder_counts, bool)
+            or int(encoder_counts) != encoder_counts
+            or (encoder_counts < 1)
         ):
             raise ValueError(f"encoder_counts={encoder_counts!r} must be a positive integer")
         step = 2.0 * math.pi / encoder_counts
@@ -459,9 +472,7 @@ def _input_power(torque: np.ndarray, window: str | None) -> np.ndarray:
     return np.abs(np.fft.rfft((torque - torque.mean()) * taper)) ** 2
 
 
-def _frf_noise_floor(
-    record: Record, frf: FRF, settings: FRFSettings, accel_sigma: float
-) -> float:
+def _frf_noise_floor(record: Record, frf: FRF, settings: FRFSettings, accel_sigma: float) -> float:
     """FRF NRMSE (%) that white accelerometer noise alone gives on the compared bins.
 
     Noise of variance ``σ²`` adds ``N_k/X_k`` to each bin, with ``E|N_k|² = σ² Σ w²``; to first
@@ -481,9 +492,7 @@ def _safe_frf_nrmse(frf: FRF, bins: np.ndarray, f_max: float) -> float:
     return frf_nrmse(frf.freqs[bins], h_meas, h_model, f_max=f_max)
 
 
-def _peaks(
-    freqs: np.ndarray, magnitude: np.ndarray, valid: np.ndarray
-) -> tuple[float, ...]:
+def _peaks(freqs: np.ndarray, magnitude: np.ndarray, valid: np.ndarray) -> tuple[float, ...]:
     """Frequencies of local maxima of ``magnitude`` whose two neighbours are valid bins too,
     refined by a parabola through the log-magnitudes of the three bins."""
     found = []

@@ -66,12 +66,13 @@ def make_data(state: DemoState) -> DemoState:
     """Noisy synthetic records of the reference inputs, saved under ``records/``."""
     records = make_records(inputs=DEFAULT_INPUTS, noise=True, seed=state.seed)
     paths = [
-        save_record(r, _record_path(state.out, r.name), overwrite=state.overwrite)
-        for r in records
+        save_record(r, _record_path(state.out, r.name), overwrite=state.overwrite) for r in records
     ]
-    state.echo(f"made {len(records)} noisy records ({', '.join(records.names)}), seed "
-               f"{state.seed}: encoder {ENCODER_COUNTS} counts/rev, accelerometer sigma "
-               f"{ACCELEROMETER_SIGMA} m/s^2")
+    state.echo(
+        f"made {len(records)} noisy records ({', '.join(records.names)}), seed "
+        f"{state.seed}: encoder {ENCODER_COUNTS} counts/rev, accelerometer sigma "
+        f"{ACCELEROMETER_SIGMA} m/s^2"
+    )
     return replace(state, records=records).wrote(*paths)
 
 
@@ -79,12 +80,13 @@ def identify_on_one(state: DemoState) -> DemoState:
     """Identify the six parameters on the ``FIT_ON`` record only; save ``fit.json``."""
     from jaxflex.identify import identify
 
-    fit = identify(state.records[FIT_ON], method="de", seed=state.seed, intervals=False,
-                   **BUDGET)
+    fit = identify(state.records[FIT_ON], method="de", seed=state.seed, intervals=False, **BUDGET)
     path = fit.to_json(state.out / "fit.json", overwrite=state.overwrite)
-    state.echo(f"identified on {FIT_ON!r}: DE, population {BUDGET['population']}, "
-               f"{BUDGET['generations']} generations (cost {fit.cost_search:.3g}), then "
-               f"refinement (cost {fit.cost:.3g})")
+    state.echo(
+        f"identified on {FIT_ON!r}: DE, population {BUDGET['population']}, "
+        f"{BUDGET['generations']} generations (cost {fit.cost_search:.3g}), then "
+        f"refinement (cost {fit.cost:.3g})"
+    )
     truth = true_parameters()
     state.echo(f"  {'parameter':<10} {'identified':>12} {'true':>12} {'error %':>8}")
     for name, value in fit.params.items():
@@ -96,8 +98,9 @@ def identify_on_one(state: DemoState) -> DemoState:
 def validate_held_out(state: DemoState) -> DemoState:
     """Compare the fitted model with every record; the ones not fitted are held out."""
     fit = state.fit
-    comparison = compare(fit.model(), fit.params, state.records, fit_names=fit.record_names,
-                         **NOISE)
+    comparison = compare(
+        fit.model(), fit.params, state.records, fit_names=fit.record_names, **NOISE
+    )
     state.echo("validation (fit on one record, the others held out):")
     state.echo(_indent(comparison.table()))
     return replace(state, comparison=comparison)

@@ -63,14 +63,25 @@ def test_prints_the_table_and_writes_the_report(files, tmp_path, capsys):
     rc = validate(*files["records"], "--fit", files["fit"], "--report", report, *NOISE_ARGS)
     out = capsys.readouterr().out
     assert rc == 0
-    rows = {ln.split()[0]: ln.split()[1] for ln in out.splitlines() if ln.split()
-            and ln.split()[0] in ("triangular", "pulse", "half_sine")}
+    rows = {
+        ln.split()[0]: ln.split()[1]
+        for ln in out.splitlines()
+        if ln.split() and ln.split()[0] in ("triangular", "pulse", "half_sine")
+    }
     assert rows == {"triangular": "fit", "pulse": "held-out", "half_sine": "held-out"}
     assert "NRMSE angle %" in out and "floor tip acc %" in out
     assert f"wrote 6 files to {report}" in out
     names = sorted(p.name for p in report.iterdir())
-    assert names == sorted(["table.txt", "comparison.json", "frf.png", "triangular_time.png",
-                            "pulse_time.png", "half_sine_time.png"])
+    assert names == sorted(
+        [
+            "table.txt",
+            "comparison.json",
+            "frf.png",
+            "triangular_time.png",
+            "pulse_time.png",
+            "half_sine_time.png",
+        ]
+    )
     data = json.loads((report / "comparison.json").read_text())
     for row in data["records"]:  # the fit file holds the true parameters: noise-limited errors
         for out_name, floor in row["noise_floor_percent"].items():
@@ -81,8 +92,19 @@ def test_prints_the_table_and_writes_the_report(files, tmp_path, capsys):
     rc = validate(*files["records"], "--fit", files["fit"], "--report", report)
     err = capsys.readouterr().err
     assert rc == 2 and "file exists" in err and "--overwrite" in err
-    assert validate(*files["records"], "--fit", files["fit"], "--report", report, "--overwrite",
-                    "--format", "pdf") == 0
+    assert (
+        validate(
+            *files["records"],
+            "--fit",
+            files["fit"],
+            "--report",
+            report,
+            "--overwrite",
+            "--format",
+            "pdf",
+        )
+        == 0
+    )
     assert (report / "frf.pdf").read_bytes()[:5] == b"%PDF-"
 
 

@@ -41,7 +41,10 @@ def test_steps_chain_and_write_every_planned_file(tmp_path):
     assert set(state.files) == set(planned_files(out)) - {out / "fit.json"}
     assert all(p.is_file() for p in state.files)
     assert [ln for ln in lines if ln.startswith("== ")][:4] == [
-        "== records", "== identify", "== validate", "== report"
+        "== records",
+        "== identify",
+        "== validate",
+        "== report",
     ]
     assert state.comparison.names == ("triangular", "pulse", "half_sine")
     assert [r.role for r in state.comparison.rows] == ["fit", "held-out", "held-out"]

@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import os
 from pathlib import Path
 
 import nbformat
@@ -14,10 +13,11 @@ NOTEBOOK = Path(__file__).resolve().parents[1] / "notebooks" / "compare.ipynb"
 
 def test_compare_notebook_executes(monkeypatch, tmp_path):
     monkeypatch.setenv("JAXFLEX_FAST", "1")
-    monkeypatch.setenv("MPLBACKEND", "module://matplotlib_inline.backend_inline")
+    monkeypatch.setenv("MPLBACKEND", "Agg")  # headless, as in CI: %matplotlib inline still shows
     nb = nbformat.read(NOTEBOOK, as_version=4)
-    client = NotebookClient(nb, kernel_name="python3", timeout=300,
-                            resources={"metadata": {"path": str(tmp_path)}})
+    client = NotebookClient(
+        nb, kernel_name="python3", timeout=300, resources={"metadata": {"path": str(tmp_path)}}
+    )
     client.execute()
     outputs = [o for cell in nb.cells if cell.cell_type == "code" for o in cell.outputs]
     assert not [o for o in outputs if o.output_type == "error"]
@@ -25,7 +25,6 @@ def test_compare_notebook_executes(monkeypatch, tmp_path):
     assert "held-out" in text and "floor tip acc %" in text
     images = [o for o in outputs if "image/png" in o.get("data", {})]
     assert len(images) >= 3  # time and FRF figures display inline
-    assert os.environ["JAXFLEX_FAST"] == "1"
 
 
 pytestmark = pytest.mark.filterwarnings("ignore::DeprecationWarning")

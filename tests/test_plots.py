@@ -21,8 +21,14 @@ from jaxflex.synthetic import make_records
 @pytest.fixture(scope="module")
 def comparison():
     records = make_records(inputs=("triangular", "pulse"), seed=1)
-    return compare(Model(), reference_parameters(), records, fit_names=["triangular"],
-                   encoder_counts=4096, accel_sigma=0.05)
+    return compare(
+        Model(),
+        reference_parameters(),
+        records,
+        fit_names=["triangular"],
+        encoder_counts=4096,
+        accel_sigma=0.05,
+    )
 
 
 def assert_image(path, width_px: int, height_px: int) -> np.ndarray:
@@ -42,7 +48,10 @@ def test_time_figure_png_has_size_and_content(comparison, tmp_path):
     assert_image(path, 480, 400)
     labels = [ax.get_ylabel() for ax in fig.axes]
     assert labels == [
-        "joint angle (rad)", "residual (rad)", "tip acceleration (m/s^2)", "residual (m/s^2)"
+        "joint angle (rad)",
+        "residual (rad)",
+        "tip acceleration (m/s^2)",
+        "residual (m/s^2)",
     ]
     assert fig.axes[-1].get_xlabel() == "time (s)"
     assert "pulse (held-out)" in fig.get_suptitle()

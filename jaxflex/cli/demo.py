@@ -9,8 +9,12 @@ HELP = "run the demo on synthetic records: identify on one input, validate on th
 
 def register(subparsers: argparse._SubParsersAction) -> None:
     p = subparsers.add_parser("demo", help=HELP, description=HELP)
-    p.add_argument("--out", default="demo-output", metavar="DIR",
-                   help="directory for records, fit, table and figures (default: %(default)s)")
+    p.add_argument(
+        "--out",
+        default="demo-output",
+        metavar="DIR",
+        help="directory for records, fit, table and figures (default: %(default)s)",
+    )
     p.add_argument("--seed", type=int, default=0, help="seed of noise and search (default: 0)")
     p.add_argument("--overwrite", action="store_true", help="replace files from an earlier run")
     p.set_defaults(func=run)

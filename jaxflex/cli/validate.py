@@ -19,36 +19,66 @@ HELP = "compare a fitted model with measured records: metrics table and figures"
 
 def register(subparsers: argparse._SubParsersAction) -> None:
     p = subparsers.add_parser("validate", help=HELP, description=HELP)
-    p.add_argument("data", nargs="+", metavar="DATA",
-                   help="record files (.csv/.npz) or directories of them")
-    p.add_argument("--fit", required=True, metavar="FIT.json",
-                   help="fit file written by `jaxflex identify`")
-    p.add_argument("--report", metavar="DIR",
-                   help="write table.txt, comparison.json and the figures into DIR")
+    p.add_argument(
+        "data", nargs="+", metavar="DATA", help="record files (.csv/.npz) or directories of them"
+    )
+    p.add_argument(
+        "--fit", required=True, metavar="FIT.json", help="fit file written by `jaxflex identify`"
+    )
+    p.add_argument(
+        "--report", metavar="DIR", help="write table.txt, comparison.json and the figures into DIR"
+    )
     p.add_argument("--overwrite", action="store_true", help="replace existing report files")
-    p.add_argument("--format", choices=("png", "pdf", "svg"), default="png",
-                   help="figure file format (default: png)")
-    p.add_argument("--resample", action="store_true",
-                   help="resample records whose time column is not uniform")
-    p.add_argument("--t-end", type=float, default=DEFAULT_T_END, metavar="S",
-                   help="time-domain metrics over 0 <= t <= S seconds (default: %(default)s)")
-    p.add_argument("--f-max", type=float, default=15.0, metavar="HZ",
-                   help="upper end of the FRF comparison band (default: %(default)s Hz)")
-    p.add_argument("--raw-frf", action="store_true",
-                   help="compare every FRF bin of the band, also those with almost no input "
-                        "power (default: leave out bins more than 30 dB below the peak)")
-    p.add_argument("--encoder-counts", type=int, metavar="N",
-                   help="encoder counts per revolution, to report the noise floor")
-    p.add_argument("--accel-sigma", type=float, metavar="S",
-                   help="accelerometer noise standard deviation (m/s^2), for the noise floor")
+    p.add_argument(
+        "--format",
+        choices=("png", "pdf", "svg"),
+        default="png",
+        help="figure file format (default: png)",
+    )
+    p.add_argument(
+        "--resample", action="store_true", help="resample records whose time column is not uniform"
+    )
+    p.add_argument(
+        "--t-end",
+        type=float,
+        default=DEFAULT_T_END,
+        metavar="S",
+        help="time-domain metrics over 0 <= t <= S seconds (default: %(default)s)",
+    )
+    p.add_argument(
+        "--f-max",
+        type=float,
+        default=15.0,
+        metavar="HZ",
+        help="upper end of the FRF comparison band (default: %(default)s Hz)",
+    )
+    p.add_argument(
+        "--raw-frf",
+        action="store_true",
+        help="compare every FRF bin of the band, also those with almost no input "
+        "power (default: leave out bins more than 30 dB below the peak)",
+    )
+    p.add_argument(
+        "--encoder-counts",
+        type=int,
+        metavar="N",
+        help="encoder counts per revolution, to report the noise floor",
+    )
+    p.add_argument(
+        "--accel-sigma",
+        type=float,
+        metavar="S",
+        help="accelerometer noise standard deviation (m/s^2), for the noise floor",
+    )
     p.set_defaults(func=run)
 
 
 def run(args: argparse.Namespace) -> int:
     fit, model = _load_fit(Path(args.fit))
     records = _load_records(args.data, resample=args.resample)
-    frf = FRFSettings(f_max=args.f_max, **({"min_input_db": None, "min_coherence": None}
-                                         if args.raw_frf else {}))
+    frf = FRFSettings(
+        f_max=args.f_max, **({"min_input_db": None, "min_coherence": None} if args.raw_frf else {})
+    )
     comparison = compare(
         model,
         fit.params,

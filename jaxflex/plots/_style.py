@@ -66,8 +66,10 @@ def save_figure(
     path = Path(path)
     fmt = path.suffix.lower().lstrip(".")
     if fmt not in FORMATS:
-        raise ValueError(f"{path}: cannot save a figure as {path.suffix!r}; use one of "
-                         f"{', '.join('.' + f for f in FORMATS)}")
+        raise ValueError(
+            f"{path}: cannot save a figure as {path.suffix!r}; use one of "
+            f"{', '.join('.' + f for f in FORMATS)}"
+        )
     return atomic_write(
         path, lambda p: fig.savefig(p, format=fmt, dpi=dpi or fig.dpi), overwrite=overwrite
     )

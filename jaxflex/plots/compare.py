@@ -58,7 +58,11 @@ def plot_time(
         raise ValueError("outputs must name at least one output")
 
     fig, axes = new_figure(
-        2 * len(outputs), 1, figsize=figsize, dpi=dpi, sharex=True,
+        2 * len(outputs),
+        1,
+        figsize=figsize,
+        dpi=dpi,
+        sharex=True,
         height_ratios=[3.0, 1.2] * len(outputs),
     )
     t = record.time
@@ -66,13 +70,17 @@ def plot_time(
         model = np.asarray(out.channel(name))
         measured = record.channel(name)
         if model.shape != measured.shape:
-            raise ValueError(f"simulated {name} has shape {model.shape} but record "
-                             f"{record.name!r} has {measured.shape}")
+            raise ValueError(
+                f"simulated {name} has shape {model.shape} but record "
+                f"{record.name!r} has {measured.shape}"
+            )
         unit = record.units.get(name) or "-"
         label = name.replace("_", " ")
         ax, ax_res = axes[2 * k, 0], axes[2 * k + 1, 0]
-        model_label = "model" if row is None or name not in row.nrmse else (
-            f"model (NRMSE {row.nrmse[name]:.3g} %)"
+        model_label = (
+            "model"
+            if row is None or name not in row.nrmse
+            else (f"model (NRMSE {row.nrmse[name]:.3g} %)")
         )
         ax.plot(t, measured, color=MEASURED, lw=1.0, label="measured")
         ax.plot(t, model, color=MODEL, lw=1.3, ls="--", label=model_label)
@@ -109,8 +117,10 @@ def plot_frf(
     comparison's band, 15 Hz).
     """
     if isinstance(source, Comparison):
-        keys = range(len(source)) if which is None else (
-            [which] if isinstance(which, (int, str)) else list(which)
+        keys = (
+            range(len(source))
+            if which is None
+            else ([which] if isinstance(which, (int, str)) else list(which))
         )
         rows = [source[k] for k in keys]
         curves = [(r.name, r.frf, r.measured_peaks_hz) for r in rows]
@@ -140,35 +150,61 @@ def plot_frf(
         suffix = "" if single else f" {name}"
         gaps = np.where(frf.compared, model_db, np.nan)  # no line through left-out bins
         ax_mag.plot(f[show], gaps[show], color=colour_model, lw=1.4, label=f"model{suffix}")
-        ax_mag.plot(f[used], meas_db[used], "o", color=colour_meas, ms=4,
-                    label=f"measured{suffix}")
-        ax_mag.plot(f[left_out], meas_db[left_out], "x", color=colour_meas, ms=4, alpha=0.35,
-                    label="left out (low input power)" if i == 0 and left_out.any() else None)
+        ax_mag.plot(f[used], meas_db[used], "o", color=colour_meas, ms=4, label=f"measured{suffix}")
+        ax_mag.plot(
+            f[left_out],
+            meas_db[left_out],
+            "x",
+            color=colour_meas,
+            ms=4,
+            alpha=0.35,
+            label="left out (low input power)" if i == 0 and left_out.any() else None,
+        )
         phase = np.where(frf.compared, np.degrees(np.angle(frf.model)), np.nan)
         ax_phase.plot(f[show], phase[show], color=colour_model, lw=1.2)
-        ax_phase.plot(f[used], np.degrees(np.angle(frf.measured[used])), "o", color=colour_meas,
-                      ms=3)
+        ax_phase.plot(
+            f[used], np.degrees(np.angle(frf.measured[used])), "o", color=colour_meas, ms=3
+        )
         visible_peaks = [p for p in peaks if p <= f_max]
         if visible_peaks:
-            ax_mag.plot(visible_peaks, np.interp(visible_peaks, f[used], meas_db[used]) + 3.0,
-                        "v", color=colour_meas, ms=6,
-                        label="measured peak" if single else None)
+            ax_mag.plot(
+                visible_peaks,
+                np.interp(visible_peaks, f[used], meas_db[used]) + 3.0,
+                "v",
+                color=colour_meas,
+                ms=6,
+                label="measured peak" if single else None,
+            )
         shown_db += [meas_db[used], model_db[used]]
 
     for k, f_res in enumerate(r for r in resonances if r <= f_max):
         for ax in (ax_mag, ax_phase):
-            ax.axvline(f_res, color=MARK, ls="--", lw=1.0,
-                       label="model mode (free hub)" if ax is ax_mag and k == 0 else None)
-        ax_mag.text(f_res, 0.98, f" {f_res:.2f} Hz", transform=ax_mag.get_xaxis_transform(),
-                    color=MARK, fontsize="small", ha="left", va="top")
+            ax.axvline(
+                f_res,
+                color=MARK,
+                ls="--",
+                lw=1.0,
+                label="model mode (free hub)" if ax is ax_mag and k == 0 else None,
+            )
+        ax_mag.text(
+            f_res,
+            0.98,
+            f" {f_res:.2f} Hz",
+            transform=ax_mag.get_xaxis_transform(),
+            color=MARK,
+            fontsize="small",
+            ha="left",
+            va="top",
+        )
 
     levels = np.concatenate(shown_db) if shown_db else np.empty(0)
     levels = levels[np.isfinite(levels)]
     if levels.size:
         ax_mag.set_ylim(levels.min() - 10.0, levels.max() + 10.0)
     ax_mag.set_ylabel("|H| (dB re 1 m s⁻² / N m)")
-    ax_mag.legend(loc="lower left", bbox_to_anchor=(0.0, 1.0), fontsize="small", frameon=False,
-                  ncols=3)
+    ax_mag.legend(
+        loc="lower left", bbox_to_anchor=(0.0, 1.0), fontsize="small", frameon=False, ncols=3
+    )
     ax_phase.set_ylabel("phase (deg)")
     ax_phase.set_ylim(-190, 190)
     ax_phase.set_yticks([-180, -90, 0, 90, 180])
