@@ -300,7 +300,7 @@ def _unit_seeds(objective: Objective, init_population: Any) -> np.ndarray | None
             bad = ~np.isfinite(v) | (v < spec.lower) | (v > spec.upper)
             if np.any(bad):
                 raise ValueError(
-                    f"init_population: {n}={v[bad][0]!r} lies outside its search bounds "
+                    f"init_population: {n}={float(v[bad][0])!r} lies outside its search bounds "
                     f"[{spec.lower!r}, {spec.upper!r}] {spec.unit}"
                 )
         units.append(np.atleast_2d(np.asarray(space.to_unit(values))))

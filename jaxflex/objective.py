@@ -234,7 +234,8 @@ def build_objective(
     """The objective of ``model`` (default: the reference testbed) over ``records``.
 
     ``weights`` maps channel → weight (default 1 each); ``fixed`` maps parameter → value held
-    fixed; ``bounds`` maps parameter → ``(lower, upper)`` replacing its search bounds. Every
+    fixed; ``bounds`` maps parameter → ``(lower, upper)`` replacing its search bounds. Channels
+    of weight 0 are left out of the objective altogether. Every
     argument is validated and errors name the record, channel or parameter at fault.
     """
     model = Model() if model is None else model
@@ -248,6 +249,10 @@ def build_objective(
         if c not in OUTPUT_NAMES:
             raise ValueError(f"channel {c!r} is not a simulated output; outputs: {OUTPUT_NAMES}")
     weight_values = _check_weights(weights, channels)
+    # a channel of weight 0 adds nothing: leave it out of the simulation and the residuals
+    channels, weight_values = zip(
+        *((c, w) for c, w in zip(channels, weight_values, strict=True) if w > 0), strict=True
+    )
     specs, fixed_values = _free_specs(model.space, bounds, fixed)
     model.space.validate({**model.space.reference(), **fixed_values})
 

@@ -168,14 +168,16 @@ def refine(
     objective: Objective,
     starts: Mapping[str, ArrayLike] | Sequence[Mapping[str, ArrayLike]],
     *,
-    rtol: float = 1e-10,
-    atol: float = 1e-12,
+    rtol: float = 1e-6,
+    atol: float = 1e-8,
     max_steps: int = 100,
 ) -> Refinement:
     """Levenberg–Marquardt from one start (free parameters, physical) or the best of several.
 
     Each start is refined; the end with the lowest cost is returned, accepted only if it is
-    finite and below the cost of the best start.
+    finite and below the cost of the best start. ``rtol``/``atol`` are optimistix's stopping
+    tolerances (on the step in ``z`` and on the cost); the defaults resolve the parameters far
+    below their statistical uncertainty.
     """
     starts = [starts] if isinstance(starts, Mapping) else list(starts)
     if not starts:

@@ -1,0 +1,220 @@
+"""Identification: evolutionary search + Levenberg–Marquardt refinement + honest intervals.
+
+Budgets are reduced (a box of ±50 % around the truth, small populations) so the default suite
+stays fast; the paper-setting run over the full box is marked slow. All tests that fit the
+three 2 s reference records share the same search bounds, so they share compiled code.
+"""
+
+import math
+
+import equinox as eqx
+import numpy as np
+import pytest
+
+import jaxflex  # noqa: F401  (float64)
+from jaxflex._io import OutputExistsError
+from jaxflex.data import RecordError
+from jaxflex.evolve import get_strategy
+from jaxflex.identify import Fit, identify, load_fit
+from jaxflex.model import Model
+from jaxflex.objective import build_objective
+from jaxflex.refine import refine, uncertainty
+from jaxflex.synthetic import make_records
+
+TRUTH = {k: float(v) for k, v in Model().space.reference().items()}
+BOUNDS = {k: (v / 1.5, v * 1.5) for k, v in TRUTH.items()}
+FACTORS = (1.04, 0.96, 1.2, 0.97, 1.1, 0.9)
+START = {k: v * f for (k, v), f in zip(TRUTH.items(), FACTORS, strict=True)}
+
+
+@pytest.fixture(scope="module")
+def clean():
+    return make_records(noise=False)
+
+
+@pytest.fixture(scope="module")
+def clean_fit(clean):
+    return identify(clean, method="de", seed=0, generations=12, population=20, bounds=BOUNDS)
+
+
+# ------------------------------------------------------------------------------ recovery
+
+
+def test_noise_free_records_recover_every_parameter(clean_fit):
+    fit = clean_fit
+    for name, true in TRUTH.items():
+        error = abs(fit.params[name] / true - 1)
+        assert error < 0.005 or name in fit.poorly_identifiable, (name, error)
+        if name in fit.poorly_identifiable:  # then the interval must say so honestly
+            lo, hi = fit.intervals[name]
+            assert hi / lo > 2.0 and lo <= true <= hi
+    # noise-free: refinement drives the residual to round-off, far below the search result
+    assert fit.refinement.accepted and fit.refinement.result == "successful"
+    assert fit.cost < 1e-10 < fit.cost_search
+    assert fit.cost <= fit.cost_search
+
+
+def test_fit_records_how_it_was_found(clean_fit):
+    fit = clean_fit
+    assert fit.names == tuple(TRUTH) and fit.method == "de" and fit.seed == 0
+    assert fit.record_names == ("triangular", "pulse", "half_sine")
+    best = fit.history.best
+    assert best.shape == (13,) and np.all(np.diff(best) <= 0)  # running best never rises
+    assert np.all(fit.history.mean >= best)
+    assert fit.history.best_params["E"].shape == (13,)
+    assert fit.settings["strategy"]["population"] == 20 and fit.settings["n_evaluations"] == 260
+    assert fit.settings["bounds"]["J_h"] == pytest.approx(list(BOUNDS["J_h"]))
+    assert {"search", "search_compile", "refine", "uncertainty", "total"} <= set(fit.timing)
+    assert fit.provenance["versions"]["jax"]
+    assert fit.model() == Model()
+    assert "E" in fit.summary() and "refinement: successful" in fit.summary()
+
+
+def test_fit_json_round_trip(clean_fit, tmp_path):
+    path = tmp_path / "fit.json"
+    clean_fit.to_json(path)
+    with pytest.raises(OutputExistsError):
+        clean_fit.to_json(path)
+    loaded = load_fit(path)
+    assert isinstance(loaded, Fit)
+    assert loaded.params == clean_fit.params
+    assert loaded.intervals == clean_fit.intervals
+    np.testing.assert_array_equal(loaded.correlation, clean_fit.correlation)
+    np.testing.assert_array_equal(loaded.history.best, clean_fit.history.best)
+    assert loaded.refinement == clean_fit.refinement
+    assert loaded.model() == clean_fit.model()
+    (tmp_path / "bad.json").write_text('{"format": "something else"}')
+    with pytest.raises(ValueError, match="bad.json: not a jaxflex fit"):
+        load_fit(tmp_path / "bad.json")
+
+
+def test_same_seed_same_run_different_seed_different_run(clean):
+    kwargs = dict(generations=3, population=20, bounds=BOUNDS, refine=False, intervals=False)
+    a = identify(clean, seed=5, **kwargs)
+    b = identify(clean, seed=5, **kwargs)
+    c = identify(clean, seed=6, **kwargs)
+    assert a.params == b.params
+    np.testing.assert_array_equal(a.history.best, b.history.best)
+    assert a.params != c.params
+    assert not np.array_equal(a.history.mean, c.history.mean)
+    assert a.refinement is None and a.intervals == {} and a.cost == a.cost_search
+
+
+def test_init_population_seeds_the_search(clean):
+    fit = identify(
+        clean, seed=1, generations=1, population=20, bounds=BOUNDS, refine=False,
+        intervals=False, init_population=TRUTH,
+    )
+    assert fit.history.best[0] < 1e-10  # the seeded truth is the best of the first generation
+
+
+# ------------------------------------------------------------------------------ intervals
+
+
+def _coverage(seeds):
+    """Refine from START on noisy records of each seed; interval hits and the costs."""
+    hits, z_scores = [], []
+    for seed in seeds:
+        objective = build_objective(make_records(noise=True, seed=seed), bounds=BOUNDS)
+        result = refine(objective, START)
+        assert result.accepted and result.cost < result.cost_start
+        again = refine(objective, result.params)  # already optimal: never made worse
+        assert again.cost <= again.cost_start and again.cost <= result.cost * (1 + 1e-9)
+        assert again.accepted == (again.cost_end < again.cost_start)
+        unc = uncertainty(objective, result.params)
+        hits.append(list(unc.contains(TRUTH).values()))
+        std_log = np.log(unc.upper / unc.lower) / (2 * 1.959964)
+        z_scores.append((np.log(unc.estimate) - np.log(list(TRUTH.values()))) / std_log)
+        assert unc.poorly_identifiable == ()
+        # the per-channel noise estimates find the spec's sensors
+        assert unc.noise["tip_acceleration"] == pytest.approx(0.05, rel=0.1)
+        encoder_rms = 2 * math.pi / 4096 / math.sqrt(12)  # uniform quantisation error
+        assert unc.noise["joint_angle"] == pytest.approx(encoder_rms, rel=0.2)
+    return np.asarray(hits), np.asarray(z_scores)
+
+
+def test_intervals_contain_the_truth_at_about_the_stated_rate():
+    hits, z = _coverage(range(4))
+    assert hits.mean() >= 0.7, hits
+    # neither overconfident nor uselessly wide: the spread of the errors matches the stds
+    assert 0.15 < np.mean(z**2) < 2.5, z
+
+
+@pytest.mark.slow
+def test_interval_coverage_over_ten_noise_seeds():
+    hits, z = _coverage(range(10, 20))
+    assert hits.mean() >= 0.85, hits.mean(axis=0)
+    assert hits.mean(axis=0).min() >= 0.6, hits.mean(axis=0)
+    assert 0.3 < np.mean(z**2) < 2.0
+
+
+def test_encoder_only_data_cannot_pin_the_stiffness_damping():
+    """Without the accelerometer, beta is reported as poorly identifiable — and it is."""
+    records = make_records(noise=True, seed=3, duration=1.0)
+    objective = build_objective(records, weights={"tip_acceleration": 0.0}, bounds=BOUNDS)
+    result = refine(objective, START, max_steps=30)
+    assert result.accepted
+    unc = uncertainty(objective, result.params)
+    assert "beta" in unc.poorly_identifiable
+    assert any("beta" in w and "direction" in w for w in unc.warnings)
+    lo, hi = unc.intervals["beta"]
+    assert hi / lo > 10 and lo <= TRUTH["beta"] <= hi
+    assert "J_h" not in unc.poorly_identifiable and "tau_c" not in unc.poorly_identifiable
+
+    # It is true: moving beta by 40 % along the reported direction changes the fit by less
+    # than the noise can resolve (chi-square change below the 95 % threshold 3.84), while a
+    # 1 % change of J_h changes it by orders of magnitude more.
+    cost = eqx.filter_jit(lambda o, p: o.cost(p))
+    x = np.array([result.params[n] for n in objective.names])
+    base = float(cost(objective, result.params))
+    per_sample = base / objective.size  # noise variance of one normalised residual
+
+    def delta_chi2(y):
+        return (float(cost(objective, dict(zip(objective.names, y, strict=True)))) - base) / (
+            per_sample
+        )
+
+    direction = unc.eigenvectors[:, 0]  # the weakest direction, in log-parameters
+    beta = objective.names.index("beta")
+    assert abs(direction[beta]) > 0.9
+    moved = x * np.exp(np.log(1.4) / direction[beta] * direction)
+    assert moved[beta] == pytest.approx(1.4 * x[beta])
+    assert delta_chi2(moved) < 3.84
+    j_h = objective.names.index("J_h")
+    assert delta_chi2(np.where(np.arange(x.size) == j_h, 1.01 * x, x)) > 1e3
+
+
+@pytest.mark.slow
+def test_paper_setting_de_over_the_full_box_recovers_the_truth(clean):
+    fit = identify(clean, method="de", seed=0, generations=100)
+    for name, true in TRUTH.items():
+        assert abs(fit.params[name] / true - 1) < 0.005 or name in fit.poorly_identifiable
+    assert fit.cost <= fit.cost_search
+
+
+# ------------------------------------------------------------------------------ bad input
+
+
+def test_bad_input_gets_a_clear_error(clean):
+    with pytest.raises(ValueError, match="bounds for J_h: lower bound 0.1 must be below upper"):
+        identify(clean, bounds={"J_h": (0.1, 0.01)})
+    pulse = clean["pulse"]
+    with pytest.raises(RecordError, match="different sampling intervals"):
+        identify([pulse, pulse.replace(time=0.5 * pulse.time, name="fast")])
+    with pytest.raises(ValueError, match="DE: population must be an integer >= 4"):
+        identify(clean, method="de", population=3)
+    with pytest.raises(ValueError, match="GA: population must be an integer >= 2"):
+        identify(clean, method="ga", population=1)
+    with pytest.raises(ValueError, match="PSO: population must be an integer >= 2"):
+        identify(clean, method="pso", population=1)
+    with pytest.raises(ValueError, match="unknown method 'cmaes'; choose one of de, ga, pso"):
+        identify(clean, method="cmaes")
+    with pytest.raises(ValueError, match="generations must be an integer >= 1"):
+        identify(clean, generations=0, population=20)
+    with pytest.raises(ValueError, match="seed must be an integer >= 0"):
+        identify(clean, seed=-1, population=20)
+    with pytest.raises(ValueError, match="init_population: E=1.0 lies outside its search bounds"):
+        identify(clean, init_population={**TRUTH, "E": 1.0})
+    with pytest.raises(ValueError, match="refine_starts"):
+        identify(clean, population=20, refine_starts=0)
+    assert get_strategy("de").population == 100  # the paper's preset is the default
