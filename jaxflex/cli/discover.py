@@ -10,11 +10,13 @@ JSON and the figures.
 from __future__ import annotations
 
 import argparse
+import json
 from pathlib import Path
 
 from jaxflex._io import check_writable, write_json
 from jaxflex.cli import UsageError
 from jaxflex.data import Dataset, RecordError, load_dataset, load_record
+from jaxflex.model import Model
 
 HELP = "find the physical effects the model is missing: score tests, add, refit, report"
 
@@ -33,8 +35,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                    help="significance level of each step, Bonferroni over the candidates "
                         "(default: %(default)s)")
     p.add_argument("--initial", metavar="FIT.json",
-                   help="start from this fit (from `jaxflex identify`) instead of identifying "
-                        "the base model")
+                   help="start from this fit (a fit file of `jaxflex identify`, or a JSON "
+                        "object of parameter values) instead of identifying the base model")
     p.add_argument("--generations", type=int, metavar="N",
                    help="differential-evolution generations for the base model (default 100)")
     p.add_argument("--seed", type=int, default=0, help="random seed (default: %(default)s)")
@@ -90,18 +92,30 @@ def run(args: argparse.Namespace) -> int:
 
 
 def _load_fit(path: Path):
+    """(model, parameters) from a fit file of ``jaxflex identify`` or a JSON object mapping
+    parameter names to values (the reference testbed's model)."""
     if not path.is_file():
         raise UsageError(f"{path}: fit file not found (write one with `jaxflex identify`)")
-    from jaxflex.identify import load_fit
-
     try:
-        fit = load_fit(path)
-        model = fit.model()
-        model.space.validate(fit.params)
+        data = json.loads(path.read_text())
+    except (OSError, json.JSONDecodeError) as exc:
+        raise UsageError(f"{path}: not a JSON file ({exc})") from None
+    try:
+        if isinstance(data, dict) and data and all(
+            isinstance(v, (int, float)) for v in data.values()
+        ):
+            model = Model()
+            params = {k: float(v) for k, v in data.items()}
+        else:
+            from jaxflex.identify import load_fit
+
+            fit = load_fit(path)
+            model, params = fit.model(), fit.params
+        model.space.validate(params)
     except (ValueError, KeyError, TypeError) as exc:
         message = str(exc.args[0] if isinstance(exc, KeyError) and exc.args else exc)
         raise UsageError(f"cannot use the fit {path}: {message}") from None
-    return model, fit.params
+    return model, params
 
 
 def _load(paths, *, resample: bool) -> Dataset:

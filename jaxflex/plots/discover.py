@@ -2,9 +2,9 @@
 
 * :func:`plot_discovery` — the error falling as effects are added (NRMSE per output, FRF NRMSE,
   held-out error), noise floors dashed;
-* :func:`plot_before_after` — one record measured against the first and the final model;
+* :func:`plot_before_after` — one record measured against the base and the final model;
 * :func:`save_discovery_report` — ``table.txt``, ``discover.json``, the error figure, the
-  diagnosis of the first and final model and a before/after overlay per record.
+  diagnosis of the base and final model and a before/after overlay per record.
 
 Everything drawn is read from a :class:`~jaxflex.discover.DiscoveryReport`.
 """
@@ -41,10 +41,10 @@ def plot_discovery(report: DiscoveryReport, **kwargs) -> Figure:
 
 
 def plot_before_after(report: DiscoveryReport, which: int | str = 0, **kwargs) -> Figure:
-    """Record ``which`` (position or name) against the first and the final model."""
+    """Record ``which`` (position or name) against the base and the final model."""
     names = report.records.names
     i = names.index(which) if isinstance(which, str) else which
-    first, last = report.steps[0], report.final
+    first, last = report.base, report.final
     return plot_overlay(
         report.records[i], first.predictions[i], last.predictions[i],
         labels=(first.structure, last.structure), **kwargs,
@@ -62,7 +62,7 @@ def report_paths(report: DiscoveryReport, directory: str | os.PathLike,
         directory / "table.txt",
         directory / "discover.json",
         directory / f"error_falling.{fmt}",
-        directory / f"diagnosis_first.{fmt}",
+        directory / f"diagnosis_base.{fmt}",
         directory / f"diagnosis_final.{fmt}",
         *(directory / f"{s}_before_after.{fmt}" for s in stems),
     )
@@ -90,7 +90,7 @@ def save_discovery_report(
     write_text(targets[0], text, overwrite=overwrite)
     write_json(targets[1], report.to_dict(), overwrite=overwrite)
     save_figure(plot_discovery(report), targets[2], overwrite=overwrite)
-    save_figure(plot_diagnosis(report.steps[0].diagnosis), targets[3], overwrite=overwrite)
+    save_figure(plot_diagnosis(report.base.diagnosis), targets[3], overwrite=overwrite)
     save_figure(plot_diagnosis(report.final.diagnosis), targets[4], overwrite=overwrite)
     for i, path in enumerate(targets[5:]):
         save_figure(plot_before_after(report, i), path, overwrite=overwrite)
