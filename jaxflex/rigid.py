@@ -69,7 +69,8 @@ class RigidEstimate:
     """Rigid-body hub dynamics fitted by constrained weighted least squares.
 
     ``active`` names the constraints the solution lies on (see :data:`CONSTRAINTS`);
-    ``unconstrained`` is the plain weighted least-squares solution for comparison;
+    ``unconstrained`` is the plain weighted least-squares solution for comparison (it names
+    ``offset`` only when the offset was fitted);
     ``condition_number`` is that of the weighted regressor with columns scaled to unit norm
     (large: the data do not separate the parameters, e.g. offset from Coulomb friction).
     """
@@ -235,7 +236,7 @@ def estimate_rigid(
     residual = yw - Aw @ x
     values = np.zeros(4)
     values[:n_cols] = x
-    unconstrained = dict(zip(COLUMNS, np.append(free, 0.0)[:4].tolist(), strict=True))
+    unconstrained = dict(zip(COLUMNS[:n_cols], free.tolist(), strict=True))
     return RigidEstimate(
         J_tot=float(values[0]),
         J_h=float(values[0] - link),

@@ -79,6 +79,7 @@ def test_recovers_rigid_dominated_parameters_and_offset(smooth_record):
     assert estimate.J_h == pytest.approx(estimate.J_tot - LINK)
     assert estimate.active == ()
     assert estimate.condition_number < 10
+    assert set(estimate.unconstrained) == {"J_tot", "b_v", "tau_c", "offset"}
     # the filtered torque balance holds to a few percent of the torque's RMS (0.22 N m)
     assert estimate.residual_rms < 0.01
     # without the offset column the bias leaks into the friction estimates
@@ -100,6 +101,7 @@ def test_constraint_holds_where_least_squares_gives_negative_friction(paper_reco
     assert estimate.b_v == 0.0
     assert estimate.active == ("b_v",)
     assert estimate.unconstrained["b_v"] == pytest.approx(plain[1])
+    assert "offset" not in estimate.unconstrained  # not fitted
     # independent reference for the constrained problem: SciPy's bounded least squares
     reference = lsq_linear(A, y, bounds=([LINK, 0.0, 0.0], [np.inf] * 3), tol=1e-12).x
     got = [estimate.J_tot, estimate.b_v, estimate.tau_c]
