@@ -216,8 +216,8 @@ class Fit:
             cost_search=_float(data["cost_search"]),
             intervals={k: (_float(v[0]), _float(v[1])) for k, v in data["intervals"].items()},
             std={k: _float(v) for k, v in data["std"].items()},
-            covariance=_array(data["covariance"]),
-            correlation=_array(data["correlation"]),
+            covariance=_matrix(data["covariance"]),
+            correlation=_matrix(data["correlation"]),
             noise={k: _float(v) for k, v in data["noise"].items()},
             poorly_identifiable=tuple(data["poorly_identifiable"]),
             warnings=tuple(data["warnings"]),
@@ -229,7 +229,7 @@ class Fit:
             timing={k: _float(v) for k, v in data["timing"].items()},
             record_names=tuple(data["record_names"]),
             level=float(data.get("level", 0.95)),
-            identifiability=dict(data.get("identifiability", {})),
+            identifiability=_identifiability(data.get("identifiability", {})),
             provenance=dict(data.get("provenance", {})),
         )
 
@@ -259,13 +259,24 @@ def _float(value: Any) -> float:
     return math.nan if value is None else float(value)
 
 
+def _identifiability(data: Mapping[str, Any]) -> dict[str, Any]:
+    out = dict(data)
+    if "eigenvalues" in out:
+        out["eigenvalues"] = _array(out["eigenvalues"])
+    if "eigenvectors" in out:
+        out["eigenvectors"] = _matrix(out["eigenvectors"])
+    return out
+
+
 def _array(value: Any) -> np.ndarray:
-    return np.array(
-        [[_float(v) for v in row] for row in value]
-        if value and isinstance(value[0], list)
-        else [_float(v) for v in value],
-        dtype=np.float64,
-    )
+    """A 1-D float array from a JSON list (null → NaN)."""
+    return np.array([_float(v) for v in value], dtype=np.float64)
+
+
+def _matrix(value: Any) -> np.ndarray:
+    """A 2-D float array from a JSON list of lists (null → NaN; [] → shape (0, 0))."""
+    rows = [[_float(v) for v in row] for row in value]
+    return np.array(rows, dtype=np.float64).reshape(len(rows), len(rows[0]) if rows else 0)
 
 
 # ------------------------------------------------------------------------------ pipeline
@@ -402,6 +413,13 @@ def identify(
     warnings: list[str] = []
     if not math.isfinite(cost):
         warnings.append("no candidate gave a finite simulation: the fit is meaningless")
+    if refinement is not None and refinement.result != "successful":
+        warnings.append(f"refinement stopped early ({refinement.result}): {refinement.message}")
+    if not refine and intervals:
+        warnings.append(
+            "intervals computed at the search result, which is not refined to a least-squares "
+            "optimum: they are only indicative"
+        )
     unc = None
     if intervals and math.isfinite(cost):
         t0 = time.perf_counter()

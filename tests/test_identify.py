@@ -5,6 +5,7 @@ stays fast; the paper-setting run over the full box is marked slow. All tests th
 three 2 s reference records share the same search bounds, so they share compiled code.
 """
 
+import json
 import math
 
 import equinox as eqx
@@ -82,6 +83,10 @@ def test_fit_json_round_trip(clean_fit, tmp_path):
     np.testing.assert_array_equal(loaded.correlation, clean_fit.correlation)
     np.testing.assert_array_equal(loaded.history.best, clean_fit.history.best)
     assert loaded.refinement == clean_fit.refinement
+    np.testing.assert_array_equal(
+        loaded.identifiability["eigenvectors"], clean_fit.identifiability["eigenvectors"]
+    )
+    assert loaded.settings == json.loads(json.dumps(clean_fit.to_dict()["settings"]))
     assert loaded.model() == clean_fit.model()
     (tmp_path / "bad.json").write_text('{"format": "something else"}')
     with pytest.raises(ValueError, match="bad.json: not a jaxflex fit"):
@@ -218,3 +223,82 @@ def test_bad_input_gets_a_clear_error(clean):
     with pytest.raises(ValueError, match="refine_starts"):
         identify(clean, population=20, refine_starts=0)
     assert get_strategy("de").population == 100  # the paper's preset is the default
+
+
+# ------------------------------------------------------------------------------ study, CLI, figures
+
+
+def _bound_options():
+    return [f"--bound={k}={lo!r}:{hi!r}" for k, (lo, hi) in BOUNDS.items()]
+
+
+def test_cli_identify_writes_the_fit_and_refuses_to_overwrite(clean, tmp_path, capsys):
+    from jaxflex.cli import main
+    from jaxflex.data import save_record
+
+    paths = [str(save_record(r, tmp_path / f"{r.name}.csv")) for r in clean]
+    out, figure = tmp_path / "fit.json", tmp_path / "fit.png"
+    argv = ["identify", *paths, "--method", "de", "--seed", "2", "--generations", "3",
+            "--population", "20", *_bound_options(), "--quiet", "--out", str(out),
+            "--plot", str(figure)]
+    assert main(argv) == 0
+    printed = capsys.readouterr().out
+    assert "refinement: successful" in printed and f"wrote {out}" in printed
+    fit = load_fit(out)
+    assert fit.seed == 2 and fit.record_names == ("triangular", "pulse", "half_sine")
+    assert all(abs(fit.params[k] / v - 1) < 0.005 for k, v in TRUTH.items())
+    assert figure.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    assert main(argv) == 2  # exists: refused, one clear line
+    assert "file exists" in capsys.readouterr().err
+    assert main(["identify", paths[0], "--bound", "E=5:1", "--out", str(tmp_path / "x.json")]) == 2
+    assert "lower bound 5.0 must be below upper" in capsys.readouterr().err
+    assert main(["identify", paths[0], "--population", "3", "--out", str(tmp_path / "y.json")]) == 2
+    assert "population must be an integer >= 4" in capsys.readouterr().err
+
+
+def test_study_table_and_cli(clean, tmp_path, capsys):
+    from jaxflex.cli import main
+    from jaxflex.cli.study import parse_seeds
+    from jaxflex.data import save_record
+    from jaxflex.study import run_study
+
+    assert parse_seeds("0-3,7") == [0, 1, 2, 3, 7]
+    study = run_study(clean, methods=("de",), seeds=(0, 1), generations=2, population=20,
+                      bounds=BOUNDS, refine=False)
+    assert [r.seed for r in study.runs] == [0, 1] and study.methods == ("de",)
+    assert study.runs[0].params != study.runs[1].params
+    summary = study.summary()["de"]
+    values = [r.params["E"] for r in study.runs]
+    assert summary["E"]["mean"] == pytest.approx(np.mean(values))
+    assert summary["E"]["std"] == pytest.approx(np.std(values, ddof=1))
+    table = study.table(truth=TRUTH)
+    assert "DE (2 seeds)" in table and "objective" in table and "wall time" in table
+
+    paths = [str(save_record(r, tmp_path / f"{r.name}.csv")) for r in clean]
+    out = tmp_path / "study.json"
+    argv = ["study", *paths, "--methods", "de", "--seeds", "0-1", "--generations", "2",
+            "--population", "20", "--no-refine", *_bound_options(), "--quiet",
+            "--out", str(out), "--plot", str(tmp_path / "curves.png")]
+    assert main(argv) == 0
+    assert "DE (2 seeds)" in capsys.readouterr().out
+    data = json.loads(out.read_text())
+    assert data["format"] == "jaxflex-study/1" and len(data["runs"]) == 2
+    assert data["runs"][0]["params"] == pytest.approx(study.runs[0].params)  # same seed, same run
+    assert (tmp_path / "curves.png").stat().st_size > 1000
+
+
+def test_figures(clean, clean_fit, tmp_path):
+    from jaxflex.plots._style import save_figure
+    from jaxflex.plots.identify import plot_convergence, plot_fit, plot_intervals
+
+    fig = plot_fit(clean_fit, TRUTH)
+    assert len(fig.axes) == 2
+    assert "generation" in fig.axes[0].get_xlabel()
+    assert [t.get_text() for t in fig.axes[1].get_yticklabels()] == list(TRUTH)
+    path = save_figure(fig, tmp_path / "fit.png")
+    assert path.stat().st_size > 1000
+    curves = plot_convergence({"de": [clean_fit.history.best, clean_fit.history.best[::-1]]})
+    assert curves.axes[0].get_yscale() == "log"
+    with pytest.raises(ValueError, match="no intervals"):
+        plot_intervals(identify(clean, generations=1, population=20, bounds=BOUNDS,
+                                refine=False, intervals=False))

@@ -2,8 +2,9 @@
 
 * :func:`plot_convergence` — best cost per generation, one thin line per run and the median of
   each method thick (the paper's convergence curves);
-* :func:`plot_intervals` — each identified parameter's interval relative to its estimate, on a
-  log axis, with the true value where known;
+* :func:`plot_intervals` — each identified parameter's interval, drawn in units of its own
+  half-width (log scale for log-scale parameters) and labelled with its value and spread, with
+  the true value where known (inside the interval ⇔ within ±1);
 * :func:`plot_fit` — both for one :class:`~jaxflex.identify.Fit`.
 
 Everything drawn is read from fits (or their histories); nothing is computed here but medians.
@@ -16,6 +17,7 @@ from collections.abc import Mapping, Sequence
 import numpy as np
 from matplotlib.axes import Axes
 from matplotlib.figure import Figure
+from matplotlib.ticker import MaxNLocator
 
 from jaxflex.identify import Fit
 from jaxflex.plots._style import MARK, MODEL, RESIDUAL, new_figure
@@ -65,6 +67,7 @@ def plot_convergence(
         )
         ax.plot(np.arange(length), median, color=colour, linewidth=2.2, label=label)
     ax.set_yscale("log")
+    ax.xaxis.set_major_locator(MaxNLocator(integer=True))
     ax.set_xlabel("generation")
     ax.set_ylabel("best cost (mean squared NRMSE)")
     ax.legend(frameon=False)
@@ -82,7 +85,7 @@ def plot_intervals(
     dpi: float = 100.0,
     title: str | None = None,
 ) -> Figure:
-    """Each parameter's interval as a ratio to its estimate (log axis); ``truth`` marked."""
+    """Each parameter's interval scaled to ±1, labelled with its spread; ``truth`` marked."""
     if not fit.intervals:
         raise ValueError("this fit has no intervals (identify(..., intervals=True) computes them)")
     if ax is None:
@@ -91,22 +94,35 @@ def plot_intervals(
     else:
         fig = ax.figure
     names = list(fit.intervals)
+    log = dict(zip(fit.names, fit.identifiability.get("coordinates", ()), strict=False))
     y = np.arange(len(names))[::-1]
+    reach = 1.0
     for yi, name in zip(y, names, strict=True):
         value = fit.params[name]
         lo, hi = fit.intervals[name]
-        poor = name in fit.poorly_identifiable
-        colour = RESIDUAL if poor else MODEL
-        ax.plot([lo / value, hi / value], [yi, yi], color=colour, linewidth=3,
-                solid_capstyle="butt")
-        ax.plot([1.0], [yi], "o", color=colour, markersize=5)
+        colour = RESIDUAL if name in fit.poorly_identifiable else MODEL
+        ax.plot([-1.0, 1.0], [yi, yi], color=colour, linewidth=3, solid_capstyle="butt")
+        ax.plot([0.0], [yi], "o", color=colour, markersize=5)
+        if log.get(name, "log") == "log" and hi / value > 1.5:
+            spread = f"×/÷ {hi / value:.3g}"
+        elif log.get(name, "log") == "log":
+            spread = f"± {100 * (hi / value - 1):.2g} %"
+        else:
+            spread = f"± {100 * (hi - value) / abs(value):.2g} %"
+        ax.annotate(f"{value:.5g}  {spread}", (1.0, yi), xytext=(6, 4),
+                    textcoords="offset points", fontsize=8, color=colour)
         if truth is not None and name in truth:
-            ax.plot([truth[name] / value], [yi], "x", color=MARK, markersize=8, mew=2)
+            if log.get(name, "log") == "log":
+                where = np.log(truth[name] / value) / np.log(hi / value)
+            else:
+                where = (truth[name] - value) / (hi - value)
+            reach = max(reach, min(abs(where), 5.0) + 0.3)
+            ax.plot([np.clip(where, -5.0, 5.0)], [yi], "x", color=MARK, markersize=8, mew=2)
     ax.set_yticks(y, [f"{n}{' (poor)' if n in fit.poorly_identifiable else ''}" for n in names])
-    ax.set_xscale("log")
-    ax.axvline(1.0, color="0.6", linewidth=0.8)
-    ax.set_xlabel(f"value / estimate  ({100 * fit.level:g} % interval; x = true value)"
-                  if truth is not None else f"value / estimate  ({100 * fit.level:g} % interval)")
+    ax.set_xlim(-reach - 0.2, reach + 1.2)
+    ax.axvline(0.0, color="0.6", linewidth=0.8)
+    note = "; x = true value" if truth is not None else ""
+    ax.set_xlabel(f"position in the {100 * fit.level:g} % interval (±1 = its ends{note})")
     ax.set_title(title or f"Parameter intervals ({fit.method.upper()}, seed {fit.seed})")
     return fig
 
