@@ -81,18 +81,16 @@ ALPHA = 0.01
 """Default family-wise significance level of each step (Bonferroni over the candidates)."""
 INNER_WEIGHT = 1e-2
 """``ε``: weight of quantised residuals inside the quantisation band in fits (not in tests)."""
-MIN_EXPLAINED = 0.8
+MIN_EXPLAINED = 0.9
 """An effect that leaves structure behind is kept only if it removed this share of the misfit."""
 MAX_CONFIRM = 3
 """Candidates refitted per step to confirm the score ranking."""
 PROFILE_POINTS = 13
 """Start values of a new effect's parameters tried before the refit (unit-box diagonal)."""
-SMOOTH_WIDTH = 10
-"""Samples of the moving average of a refit's first pass: it flattens the kinks a parameter
-such as a delay puts into single samples (a torque step crossing a sample instant), so that
-Levenberg–Marquardt can cross them; a second pass on the raw residuals finishes."""
 GOLDEN_STEPS = 12
 """Golden-section steps refining the best start value."""
+PATTERN_ROUNDS = 2
+"""Pattern searches (each followed by Levenberg–Marquardt when it helps) per fit."""
 PATTERN = (0.5, 0.8, 0.9, 0.95, 0.98, 0.99, 1.01, 1.02, 1.05, 1.1, 1.25, 2.0)
 """Factors a fit's pattern search tries on each effect parameter."""
 BUDGET = (60, 40)
@@ -101,7 +99,7 @@ scratch: a reduced budget (the paper: 100 × 100) — seeded around the rigid-bo
 refined by Levenberg–Marquardt, the search only has to find the right basin."""
 FAST_BUDGET = (15, 20)
 """The budget under ``JAXFLEX_FAST=1`` (tests, notebooks)."""
-LM_STEPS = 40
+LM_STEPS = 30
 """Levenberg–Marquardt steps per refit (each one Jacobian)."""
 LM_RTOL = 1e-8
 """A refit stops when an accepted step lowers the cost by less than this fraction."""
@@ -600,7 +598,6 @@ class _Engine:
     noise: dict[str, NoiseLevel]
     halfwidth: np.ndarray  # per element: quantisation half-step in units of σ (0: white)
     quantised: np.ndarray  # per element: bool
-    block_lengths: tuple[int, ...]  # lengths of the (record, channel) blocks, in order
     tested: tuple[int, ...] = ()  # the candidates (universe indices) to test and add
     max_iterations: int = LM_STEPS
 
@@ -639,10 +636,8 @@ class _Engine:
                          if levels[c].kind == "quantised" else 0.0 for c in CHANNELS])[channel]
         measured = np.concatenate([np.asarray(m).reshape(-1) for m in objective.measured])
         problem = _Problem(objective, jnp.asarray(measured / sigma), jnp.asarray(sigma))
-        blocks = tuple(int(m.shape[-1]) for m in objective.measured
-                       for _ in range(m.shape[0] * m.shape[1]))
         tested = tuple(i for i, c in enumerate(pool) if c.name in names)
-        return cls(universe, problem, records, levels, half, half > 0, blocks, tested)
+        return cls(universe, problem, records, levels, half, half > 0, tested)
 
     def candidate(self, name: str) -> int:
         """Universe index of a candidate by name."""
@@ -702,10 +697,9 @@ class _Engine:
         nulls.
         """
         u = self.universe
-        x = self._lm(x0, active, width=SMOOTH_WIDTH) if active else x0
-        x = self._lm(x, active)
+        x = self._lm(x0, active)
         effect_cols = [i for s in active for i in u.index(u.slots[s].names)]
-        for _ in range(3):
+        for _ in range(PATTERN_ROUNDS):
             base_cost = self.forward_cost(x)
             best, best_cost = x, base_cost
             for i in effect_cols:
@@ -726,36 +720,20 @@ class _Engine:
         cost = self.fit_cost(np.asarray(_forward(self.problem, jnp.asarray(x))))
         return cost if math.isfinite(cost) else math.inf
 
-    def _system(self, pred: np.ndarray, jac: np.ndarray | None, width: int):
+    def _system(self, pred: np.ndarray, jac: np.ndarray | None):
         """Fit residual vector ``[dz(u), √ε·u_quantised]`` and its Jacobian (``None`` if
-        ``jac`` is), each (record, channel) block moving-averaged over ``width`` samples."""
+        ``jac`` is)."""
         uu, dz = self.whitened(pred)
         inner = math.sqrt(INNER_WEIGHT) * self.quantised
         r = np.concatenate([dz, inner * uu])
-        jf = None
-        if jac is not None:
-            outside = (np.abs(uu) > self.halfwidth).astype(float)
-            jf = -np.concatenate([outside[:, None] * jac, inner[:, None] * jac])
-        if width > 1:
-            r = self._smooth(r, width)
-            jf = None if jf is None else self._smooth(jf, width)
-        return r, jf
+        if jac is None:
+            return r, None
+        outside = (np.abs(uu) > self.halfwidth).astype(float)
+        return r, -np.concatenate([outside[:, None] * jac, inner[:, None] * jac])
 
-    def _smooth(self, a: np.ndarray, width: int) -> np.ndarray:
-        """Moving average of ``width`` samples within each block (twice: both residual parts)."""
-        parts = []
-        offset = 0
-        for _ in range(2):
-            for n in self.block_lengths:
-                block = a[offset:offset + n]
-                c = np.cumsum(np.concatenate([np.zeros((1,) + block.shape[1:]), block]), axis=0)
-                parts.append((c[width:] - c[:-width]) / width)
-                offset += n
-        return np.concatenate(parts)
-
-    def _lm(self, x0: np.ndarray, active: Sequence[int], width: int = 1) -> np.ndarray:
+    def _lm(self, x0: np.ndarray, active: Sequence[int]) -> np.ndarray:
         """Levenberg–Marquardt of the base and ``active`` parameters on the bounds (active-set
-        projection), on residuals moving-averaged over ``width`` samples.
+        projection).
 
         The coordinates are the physical values over their starting magnitudes: in log
         coordinates a parameter pushed against a lower bound near zero (a friction term that
@@ -776,7 +754,7 @@ class _Engine:
             xt[cols] = p * scale
             pred, jac = self.evaluate(xt, linear, cols)
             jac = jac * scale
-            r, jf = self._system(pred, jac, width)
+            r, jf = self._system(pred, jac)
             cost = float(r @ r)
             return xt, r, jf, cost if math.isfinite(cost) else math.inf
 
@@ -829,7 +807,7 @@ class _Engine:
         sub = ParameterSpace([u.space[n] for n in u.slots[slot].names])
         cols = np.flatnonzero(u.active_mask(active))
         pred, jac = self.evaluate(x, np.zeros(len(x), bool), cols)
-        _, jf = self._system(pred, jac, 1)
+        _, jf = self._system(pred, jac)
         norms = np.linalg.norm(jf, axis=0)
         q, rr = np.linalg.qr(jf / np.where(norms > 0, norms, 1.0))
         q = q[:, np.abs(np.diag(rr)) > 1e-10]
@@ -837,7 +815,7 @@ class _Engine:
         def cost_at(t):
             xt = x.copy()
             xt[idx] = np.asarray(sub.to_vector(sub.from_unit(np.full(len(idx), t))))
-            r, _ = self._system(np.asarray(_forward(self.problem, jnp.asarray(xt))), None, 1)
+            r, _ = self._system(np.asarray(_forward(self.problem, jnp.asarray(xt))), None)
             r = r - q @ (q.T @ r)
             cost = float(r @ r)
             return cost if math.isfinite(cost) else math.inf, xt

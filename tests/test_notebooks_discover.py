@@ -24,7 +24,9 @@ def test_discover_notebook_executes(monkeypatch, tmp_path):
     text = "".join(o.get("text", "") for o in outputs if o.output_type == "stream")
     assert "base + payload" in text  # the hidden payload is found
     assert "UNEXPLAINED" in text  # drag is not in the library: said so
-    assert "base + quadratic_damping" in text  # and the user's own effect explains it
+    assert "c_q = 0.0" in text  # the user's own effect is fitted ...
+    last = "".join(o.get("text", "") for o in nb.cells[-1].outputs)
+    assert last.count("consistent with noise") == 2 and "NOT" not in last  # ... to the noise
     images = [o for o in outputs if "image/png" in o.get("data", {})]
     assert len(images) >= 3
 

@@ -12,6 +12,7 @@ Everything drawn is read from a :class:`~jaxflex.discover.DiscoveryReport`.
 from __future__ import annotations
 
 import os
+from collections.abc import Sequence
 from pathlib import Path
 
 from matplotlib.figure import Figure
@@ -51,13 +52,13 @@ def plot_before_after(report: DiscoveryReport, which: int | str = 0, **kwargs) -
     )
 
 
-def report_paths(report: DiscoveryReport, directory: str | os.PathLike,
+def report_paths(names: Sequence[str], directory: str | os.PathLike,
                  fmt: str = "png") -> tuple[Path, ...]:
-    """The files :func:`save_discovery_report` writes."""
+    """The files :func:`save_discovery_report` writes for a run on records ``names``."""
     directory = Path(directory)
-    stems = [_safe_stem(n) for n in report.records.names]
+    stems = [_safe_stem(n) for n in names]
     if len(set(stems)) != len(stems):
-        raise ValueError(f"record names {list(report.records.names)} map to clashing file names")
+        raise ValueError(f"record names {list(names)} map to clashing file names")
     return (
         directory / "table.txt",
         directory / "discover.json",
@@ -83,7 +84,7 @@ def save_discovery_report(
     directory = Path(directory)
     if directory.exists() and not directory.is_dir():
         raise ValueError(f"{directory}: exists and is not a directory")
-    targets = report_paths(report, directory, fmt)
+    targets = report_paths(report.records.names, directory, fmt)
     for path in targets:
         check_writable(path, overwrite)
     text = report.table() + "\n" + "\n".join(report.explanations()) + "\n"
