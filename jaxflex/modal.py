@@ -20,6 +20,7 @@ import equinox as eqx
 import jax.numpy as jnp
 from jaxtyping import Array, Float, Scalar
 
+from jaxflex._linalg import cholesky, eigh, solve_lower, solve_upper
 from jaxflex.effects._base import Structure
 
 
@@ -54,12 +55,12 @@ def free_hub_modes(structure: Structure) -> Modes:
     inertia = mass[0, 0]
     coupling = mass[1:, 0]
     condensed_mass = mass[1:, 1:] - jnp.outer(coupling, coupling) / inertia
-    chol = jnp.linalg.cholesky(condensed_mass)
-    left = jnp.linalg.solve(chol, stiffness[1:, 1:])  # L⁻¹ K
-    sym = jnp.linalg.solve(chol, left.T).T  # L⁻¹ K L⁻ᵀ
+    chol = cholesky(condensed_mass)
+    left = solve_lower(chol, stiffness[1:, 1:])  # L⁻¹ K
+    sym = solve_lower(chol, left.T).T  # L⁻¹ K L⁻ᵀ
     sym = 0.5 * (sym + sym.T)
-    eigvals, eigvecs = jnp.linalg.eigh(sym)
-    elastic = jnp.linalg.solve(chol.T, eigvecs)  # Φ_q = L⁻ᵀ Y
+    eigvals, eigvecs = eigh(sym)
+    elastic = solve_upper(chol.T, eigvecs)  # Φ_q = L⁻ᵀ Y
     hub = -(coupling @ elastic) / inertia
     shapes = jnp.concatenate([hub[None, :], elastic], axis=0)
     omega = jnp.sqrt(jnp.maximum(eigvals, 0.0))

@@ -166,6 +166,7 @@ class _ModalSystem(eqx.Module):
     load_modal: Array  # (k, m) modal force of each load shape
     tip: Array  # (m,) w(L) per mode
     root_curvature: Array  # (m,) w''(0) per mode
+    shapes: Array  # (n, m) mode shapes, to map back to physical coordinates
     initial: tuple[Array, Array]  # (θ_r, η) at rest under the loads
 
 
@@ -185,22 +186,39 @@ def _modal_system(model: Model, params: Params, h: float) -> _ModalSystem:
         load_modal=modes.project(loads),
         tip=modes.project(structure.tip),
         root_curvature=modes.project(structure.root_curvature),
+        shapes=modes.shapes,
         initial=_rest_under_loads(model, params, structure, modes, loads),
     )
 
 
 def _rest_under_loads(model: Model, params: Params, structure, modes: Modes, loads):
-    """Modal coordinates of rest at θ = 0 with the beam deflected statically by the loads."""
+    """Modal coordinates of rest at θ = 0 with the beam deflected statically by the loads.
+
+    With the hub held, ``K_qq q = f_q``; since ``Φ_qᵀ K_qq Φ_q = diag ω²`` with ``Φ_q`` square,
+    ``K_qq⁻¹ = Φ_q diag(ω⁻²) Φ_qᵀ`` and no further factorisation is needed.
+    """
     amplitude = model.load_amplitudes(params, jnp.zeros(()), jnp.zeros(()))
     force = amplitude @ loads
-    q_elastic = jnp.linalg.solve(structure.stiffness[1:, 1:], force[1:])
+    elastic_shapes = modes.shapes[1:]
+    q_elastic = elastic_shapes @ ((elastic_shapes.T @ force[1:]) / modes.omega**2)
     q0 = jnp.concatenate([jnp.zeros(1), q_elastic])
     eta = modes.project(structure.mass @ q0)
     return -modes.hub @ eta, eta
 
 
-def simulate_core(model: Model, params: Params, torque: Float[Array, " n"], dt: float) -> Outputs:
-    """Simulate one parameter set; pure and traceable (no input checks). See :func:`simulate`."""
+def simulate_core(
+    model: Model,
+    params: Params,
+    torque: Float[Array, " n"],
+    dt: float,
+    *,
+    return_states: bool = False,
+) -> Outputs | tuple[Outputs, tuple[Array, Array]]:
+    """Simulate one parameter set; pure and traceable (no input checks). See :func:`simulate`.
+
+    With ``return_states`` also returns the generalised coordinates and velocities
+    ``(q, q')``, each ``(n_samples, 1 + 2·n_elements)``, at the sample instants.
+    """
     n_sub = model.n_substeps
     h = dt / n_sub
     system = _modal_system(model, params, h)
@@ -264,8 +282,15 @@ def simulate_core(model: Model, params: Params, torque: Float[Array, " n"], dt: 
     fine = jnp.repeat(torque, n_sub)
     fine = model.input_torque(params, fine, h).reshape(torque.shape[0], n_sub)
 
+    def physical(state):
+        theta_r, vel_r, eta, deta, _, _ = state
+        e_theta = jnp.zeros(system.shapes.shape[0]).at[0].set(1.0)
+        return e_theta * theta_r + system.shapes @ eta, e_theta * vel_r + system.shapes @ deta
+
     def sample(state, taus):
         out = outputs(state, taus[0])
+        if return_states:
+            out = (out, physical(state))
         for j in range(n_sub):
             state = substep(state, taus[j])
         return state, out
@@ -274,6 +299,9 @@ def simulate_core(model: Model, params: Params, torque: Float[Array, " n"], dt: 
     vel0 = jnp.zeros_like(theta_r0)
     state0 = (theta_r0, vel0, eta0, jnp.zeros_like(eta0), vel0, friction(vel0))
     _, out = jax.lax.scan(sample, state0, fine, unroll=SCAN_UNROLL)
+    if return_states:
+        out, states = out
+        return Outputs(*out), states
     return Outputs(*out)
 
 
