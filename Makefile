@@ -18,7 +18,7 @@ $(VENV)/.stamp-dev: pyproject.toml $(VENV)/.stamp-runtime
 	touch $@
 
 demo: $(VENV)/.stamp-runtime
-	$(VENV)/bin/jaxflex demo --out demo-output
+	$(VENV)/bin/jaxflex demo --out demo-output --overwrite
 
 lint: $(VENV)/.stamp-dev
 	$(PY) -m ruff check jaxflex tests benchmarks

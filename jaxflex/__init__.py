@@ -1,12 +1,27 @@
 """jaxflex: identify flexible-link manipulators by differentiable simulation.
 
-Importing jaxflex switches JAX to float64: structural dynamics with stiff FEM modes needs it.
+Importing jaxflex switches JAX to float64 (structural dynamics with stiff FEM modes needs it)
+and, unless ``XLA_FLAGS`` already says otherwise, turns off XLA's multi-threaded Eigen on the
+CPU, whose thread pool can wedge on vmapped programs on small machines.
 """
 
-import jax
+import os
+
+if "xla_cpu_multi_thread_eigen" not in os.environ.get("XLA_FLAGS", ""):
+    os.environ["XLA_FLAGS"] = (
+        os.environ.get("XLA_FLAGS", "") + " --xla_cpu_multi_thread_eigen=false"
+    ).strip()
+
+import jax  # noqa: E402
 
 jax.config.update("jax_enable_x64", True)
 
+from jaxflex.compare import Comparison, compare, fit_and_validate, noise_floor  # noqa: E402
+from jaxflex.data import Dataset, Record, load_dataset, load_record, save_record  # noqa: E402
+from jaxflex.effects import EFFECTS, Effect, get_effect, library  # noqa: E402
+from jaxflex.frf import frf, mode_shapes, natural_frequencies  # noqa: E402
+from jaxflex.identify import Fit, identify, load_fit  # noqa: E402
+from jaxflex.model import Model  # noqa: E402
 from jaxflex.parameters import (  # noqa: E402
     BASE_PARAMETERS,
     ParameterSpace,
@@ -14,15 +29,43 @@ from jaxflex.parameters import (  # noqa: E402
     base_space,
     reference_parameters,
 )
+from jaxflex.signals import reference_input  # noqa: E402
+from jaxflex.simulate import Outputs, simulate, simulate_batch  # noqa: E402
+from jaxflex.synthetic import make_records  # noqa: E402
 from jaxflex.testbed import Testbed  # noqa: E402
 
 __version__ = "0.1.0"
 
 __all__ = [
     "BASE_PARAMETERS",
+    "EFFECTS",
+    "Comparison",
+    "Dataset",
+    "Effect",
+    "Fit",
+    "Model",
+    "Outputs",
     "ParameterSpace",
     "ParameterSpec",
+    "Record",
     "Testbed",
     "base_space",
+    "compare",
+    "fit_and_validate",
+    "frf",
+    "get_effect",
+    "identify",
+    "library",
+    "load_dataset",
+    "load_fit",
+    "load_record",
+    "make_records",
+    "mode_shapes",
+    "natural_frequencies",
+    "noise_floor",
+    "reference_input",
     "reference_parameters",
+    "save_record",
+    "simulate",
+    "simulate_batch",
 ]

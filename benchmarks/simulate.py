@@ -1,0 +1,118 @@
+"""Benchmark: candidate simulations per second, batched in JAX vs one at a time in NumPy.
+
+Measures, in one run on this machine, for populations of 1, 10, 100 and 1000 (2 s at 1 kHz,
+n_el = 10, two sub-steps: the accuracy the tests check against Radau): compile time, best-of-3
+run time, simulations per second, peak resident memory, and the NumPy candidate-by-candidate
+simulator of ``benchmarks/numpy_reference.py`` (same model and scheme) for the ratio.
+Writes ``benchmarks/results/simulate.json``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import resource
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).parent))
+
+import jax  # noqa: E402
+
+import jaxflex  # noqa: E402
+from jaxflex._io import provenance, write_json  # noqa: E402
+from jaxflex.model import Model  # noqa: E402
+from jaxflex.signals import reference_input  # noqa: E402
+from jaxflex.simulate import simulate_core  # noqa: E402
+
+RESULTS = Path(__file__).parent / "results" / "simulate.json"
+
+
+def peak_memory_mb() -> float:
+    return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
+
+
+def bench_population(model: Model, torque: np.ndarray, population: int, seed: int) -> dict:
+    u = np.random.default_rng(seed).uniform(size=(population, len(model.space)))
+    params = model.space.from_unit(u)
+    run = jax.jit(jax.vmap(lambda p, t: simulate_core(model, p, t, model.testbed.dt), (0, None)))
+    start = time.perf_counter()
+    run(params, torque).joint_angle.block_until_ready()
+    first = time.perf_counter() - start
+    times = []
+    for _ in range(3):
+        start = time.perf_counter()
+        run(params, torque).joint_angle.block_until_ready()
+        times.append(time.perf_counter() - start)
+    best = min(times)
+    return {
+        "population": population,
+        "compile_s": first - best,
+        "run_s": best,
+        "simulations_per_s": population / best,
+        "peak_rss_mb_so_far": peak_memory_mb(),
+    }
+
+
+def bench_numpy(torque: np.ndarray, count: int, seed: int) -> dict:
+    import numpy_reference
+
+    space = jaxflex.base_space()
+    u = np.random.default_rng(seed).uniform(size=(count, len(space)))
+    values = {k: np.asarray(v) for k, v in space.from_unit(u).items()}
+    start = time.perf_counter()
+    for i in range(count):
+        numpy_reference.simulate({k: float(v[i]) for k, v in values.items()}, torque, 1e-3)
+    elapsed = time.perf_counter() - start
+    return {"candidates": count, "run_s": elapsed, "simulations_per_s": count / elapsed}
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--populations", default="1,10,100,1000")
+    parser.add_argument("--numpy-candidates", type=int, default=3)
+    parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--out", default=str(RESULTS))
+    args = parser.parse_args()
+    model = Model()
+    _, torque = reference_input("pulse")
+    rows = []
+    for population in (int(p) for p in args.populations.split(",")):
+        row = bench_population(model, torque, population, args.seed)
+        rows.append(row)
+        print(
+            f"population {population:5d}: compile {row['compile_s']:5.2f} s, "
+            f"run {row['run_s'] * 1e3:8.1f} ms, {row['simulations_per_s']:9.0f} sims/s"
+        )
+    reference = bench_numpy(torque, args.numpy_candidates, args.seed)
+    print(f"NumPy candidate by candidate: {reference['simulations_per_s']:.2f} sims/s")
+    at_100 = next((r for r in rows if r["population"] == 100), rows[-1])
+    ratio = at_100["simulations_per_s"] / reference["simulations_per_s"]
+    print(f"ratio at population {at_100['population']}: {ratio:.0f}x the NumPy loop")
+    write_json(
+        args.out,
+        {
+            "benchmark": "simulate",
+            "settings": {
+                "input": "pulse",
+                "duration_s": model.testbed.duration,
+                "dt_s": model.testbed.dt,
+                "n_elements": model.testbed.n_elements,
+                "n_substeps": model.n_substeps,
+                "seed": args.seed,
+            },
+            "jax": rows,
+            "numpy": reference,
+            "ratio_at_population_100": ratio,
+            "peak_rss_mb": peak_memory_mb(),
+            **provenance(),
+        },
+        overwrite=True,
+    )
+    print(f"wrote {args.out}")
+
+
+if __name__ == "__main__":
+    main()
