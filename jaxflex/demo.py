@@ -8,6 +8,10 @@
 3. **validate** — compare the fitted model with all three records: the pulse and half-sine are
    held out; print the Table-3-style table with the noise floors.
 4. **report** — write the table, ``comparison.json`` and the figures.
+5. **discover** — the bundled example arm hides a physical effect: fit the base model (from
+   the reference values), show where it fails, name the missing effect (score tests, confirmed
+   by refits), add it and show the error fall; the step table, ``discover.json`` and figures go
+   to ``discover/``.
 
 Each step is a function ``DemoState → DemoState``; :data:`STEPS` lists them in order, so the
 story grows by appending steps. Nothing is overwritten unless asked: every file the demo would
@@ -39,6 +43,8 @@ FIT_ON = "triangular"
 NOISE = {"encoder_counts": ENCODER_COUNTS, "accel_sigma": ACCELEROMETER_SIGMA}
 BUDGET = {"population": 24, "generations": 12}
 """A deliberately short search: the refinement finishes the job, and the demo stays quick."""
+DISCOVER_DIR = "discover"
+"""Subdirectory of the discovery report."""
 
 
 @dataclass(frozen=True)
@@ -52,6 +58,7 @@ class DemoState:
     records: Dataset | None = None
     fit: Any = None  # jaxflex.identify.Fit
     comparison: Comparison | None = None
+    discovery: Any = None  # jaxflex.discover.DiscoveryReport
     files: tuple[Path, ...] = ()
     timings: dict[str, float] = field(default_factory=dict)
 
@@ -114,20 +121,48 @@ def write_report(state: DemoState) -> DemoState:
     return state.wrote(*paths)
 
 
+def discover_hidden_effect(state: DemoState) -> DemoState:
+    """Find the effect the bundled example arm hides; the report goes to ``discover/``."""
+    from jaxflex.discover import discover, load_example
+    from jaxflex.plots.discover import save_discovery_report
+
+    records, holdout = load_example()
+    state.echo(f"the example arm: {len(records)} records to fit, {len(holdout)} held out; "
+               "the base model is fitted from the reference values")
+    report = discover(records, holdout=holdout, seed=state.seed,
+                      initial=true_parameters(), max_confirm=2)
+    state.echo("where the base model fails:")
+    state.echo(_indent("\n".join(report.base.diagnosis.summary())))
+    state.echo("what is missing (score tests of every candidate, confirmed by refits):")
+    for step in report.steps:
+        if step.ranking:
+            state.echo(_indent(step.ranking[0].explanation))
+    state.echo("the error as effects are added:")
+    state.echo(_indent(report.table()))
+    paths = save_discovery_report(report, state.out / DISCOVER_DIR, overwrite=state.overwrite)
+    state.echo(f"  (the answer is in the files' comments: {records[0].metadata.get('answer')})")
+    return replace(state, discovery=report).wrote(*paths)
+
+
 STEPS: tuple[tuple[str, Step], ...] = (
     ("records", make_data),
     ("identify", identify_on_one),
     ("validate", validate_held_out),
     ("report", write_report),
+    ("discover", discover_hidden_effect),
 )
 
 
 def planned_files(out: Path) -> list[Path]:
     """Every file the demo writes, so that all can be checked before any work is done."""
+    from jaxflex.discover import load_example
     from jaxflex.plots.compare import report_paths
+    from jaxflex.plots.discover import report_paths as discovery_paths
 
     records = [_record_path(out, name) for name in DEFAULT_INPUTS]
-    return [*records, out / "fit.json", *report_paths(DEFAULT_INPUTS, out)]
+    example = load_example()[0].names
+    return [*records, out / "fit.json", *report_paths(DEFAULT_INPUTS, out),
+            *discovery_paths(example, out / DISCOVER_DIR)]
 
 
 def run_demo(

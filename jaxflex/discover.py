@@ -1152,15 +1152,14 @@ def _metrics(records: Dataset, preds: Sequence[Outputs], holdout: Dataset | None
 
 
 def _rigid(records: Dataset):
-    """The convex rigid-body estimate, or ``None`` where the records do not determine it."""
+    """The convex rigid-body estimate (no torque offset: the flexible models have none either),
+    or ``None`` where the records do not determine it."""
     from jaxflex.rigid import estimate_rigid
 
-    for offset in (True, False):
-        try:
-            return estimate_rigid(records, offset=offset)
-        except ValueError:
-            continue
-    return None
+    try:
+        return estimate_rigid(records, offset=False)
+    except ValueError:
+        return None
 
 
 def _rigid_step(engine: _Engine, estimate, records: Dataset, holdout: Dataset | None,
@@ -1174,10 +1173,9 @@ def _rigid_step(engine: _Engine, estimate, records: Dataset, holdout: Dataset | 
     if holdout is not None:
         held = [rigid_simulate(estimate, r.torque, r.dt, length=length) for r in holdout]
     nrmse, frf, held = _metrics(records, preds, holdout, held)
-    params = {"J_tot": estimate.J_tot, "b_v": estimate.b_v, "tau_c": estimate.tau_c,
-              "offset": estimate.offset}
+    params = {"J_tot": estimate.J_tot, "b_v": estimate.b_v, "tau_c": estimate.tau_c}
     fit = DiscoveryFit(model=None, params=params, cost=engine.prediction_cost(preds),
-                       n_params=len(params) - ("offset" not in estimate.unconstrained),
+                       n_params=len(params),
                        n_samples=engine.n_samples, noise=engine.noise)
     return Step(added=None, fit=fit, nrmse=nrmse, frf_nrmse=frf, holdout=held,
                 diagnosis=diagnose(records, preds, noise=engine.noise, alpha=alpha),
@@ -1382,10 +1380,16 @@ def _confirm(engine: _Engine, x: np.ndarray, cost: float, active: Sequence[int],
     """Refit the model with one more candidate; its likelihood-ratio test at ``level``, BIC.
 
     Confirmed when the LR test rejects the null at ``level``, the BIC falls and the effect did
-    not end on its null-side bound. ``start``: a (slot, start vector) found already."""
+    not end on its null-side bound. ``start``: a (slot, start vector) found already; otherwise
+    each member of a profiled candidate is refitted and the best kept."""
     u = engine.universe
-    slot, start = start if start is not None else engine.start(x, active, candidate, guess)
-    x1, cost1 = engine.fit(start, list(active) + [slot])
+    if start is not None:
+        tries = [start]
+    else:  # every member of a profile: the profiled cost may misjudge a large effect
+        slots = [i for i, s in enumerate(u.slots) if s.candidate == candidate]
+        tries = [(i, engine.profile_start(x, active, i, guess)[0]) for i in slots]
+    fits = [(engine.fit(x_start, list(active) + [slot]), slot) for slot, x_start in tries]
+    (x1, cost1), slot = min(fits, key=lambda item: item[0][1])
     specs = [u.space[n] for n in u.slots[slot].names]
     lr = cost - cost1
     sub = ParameterSpace(specs)

@@ -30,15 +30,25 @@ def _known_fit(state):
     return replace(state, fit=_TrueFit())
 
 
-FAST_STEPS = tuple((name, _known_fit if name == "identify" else step) for name, step in STEPS)
+def _skip(state):
+    """Stands in for the discovery step (tests/test_discover.py covers discovery)."""
+    return state
+
+
+FAST_STEPS = tuple(
+    (name, {"identify": _known_fit, "discover": _skip}.get(name, step)) for name, step in STEPS
+)
 
 
 def test_steps_chain_and_write_every_planned_file(tmp_path):
     lines = []
     out = tmp_path / "demo"
     state = run_demo(out, seed=3, steps=FAST_STEPS, echo=lines.append)
-    assert [name for name, _ in STEPS] == ["records", "identify", "validate", "report"]
-    assert set(state.files) == set(planned_files(out)) - {out / "fit.json"}
+    assert [name for name, _ in STEPS] == ["records", "identify", "validate", "report",
+                                           "discover"]
+    discovered = {p for p in planned_files(out) if p.parent == out / "discover"}
+    assert discovered  # the discovery report is planned (and checked) up front
+    assert set(state.files) == set(planned_files(out)) - {out / "fit.json"} - discovered
     assert all(p.is_file() for p in state.files)
     assert [ln for ln in lines if ln.startswith("== ")][:4] == [
         "== records",
@@ -89,5 +99,9 @@ def test_full_demo_identifies_and_validates(tmp_path, capsys):
         for name, floor in row["noise_floor_percent"].items():
             if name in row["nrmse_percent"]:
                 assert row["nrmse_percent"][name] <= 1.3 * floor, (row["name"], name)
+    # the example arm's hidden payload is found, and the error falls to the noise
+    found = json.loads((out / "discover" / "discover.json").read_text())
+    assert [s["added"] for s in found["steps"]][-1] == "payload"
+    assert found["unexplained"] is None
     # the written fit validates the written records through the command line
     assert main(["validate", str(out / "records"), "--fit", str(out / "fit.json")]) == 0
