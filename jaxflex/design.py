@@ -403,6 +403,7 @@ def design_input(
     ramp: float = 0.1,
     iterations: int = 30,
     seed: int = 0,
+    restarts: int = 1,
     noise: Mapping[str, float] | None = None,
     names: Sequence[str] | None = None,
     dt: float | None = None,
@@ -414,8 +415,11 @@ def design_input(
     ``±max_angle`` (rad) and speed within ``max_speed`` (rad/s), checked by simulating at the
     nominal ``params`` (default: the model's reference values; the rigid estimate's values are a
     good choice for a new arm). ``criterion`` is ``"D"`` or ``"E"`` (module doc); ``harmonics``
-    defaults to every harmonic of ``1/duration`` up to ``max_frequency`` Hz. The start is a
-    flat-spectrum multisine with random phases (``seed``); ``iterations`` ascent steps follow.
+    defaults to every harmonic of ``1/duration`` up to ``max_frequency`` Hz. Each start is a
+    flat-spectrum multisine with random phases (start ``r`` draws them from
+    ``numpy.random.default_rng((seed, r))``) followed by ``iterations`` ascent steps; the
+    criterion has many local optima, so ``restarts`` starts are tried and the best is kept
+    (``settings["start_values"]`` lists where each ended).
     """
     model = Model() if model is None else model
     values = _nominal(model, params)
@@ -437,6 +441,8 @@ def design_input(
         raise ValueError(f"iterations={iterations!r} must be an int >= 0")
     if not (isinstance(seed, (int, np.integer)) and seed >= 0):
         raise ValueError(f"seed={seed!r} must be an int >= 0")
+    if not (isinstance(restarts, (int, np.integer)) and restarts >= 1):
+        raise ValueError(f"restarts={restarts!r} must be an int >= 1")
     basis = fourier_basis(duration, dt, harmonics, ramp)
 
     problem = _Problem(
@@ -451,34 +457,17 @@ def design_input(
         criterion=criterion,
     )
     start = time.perf_counter()
-    phases = np.random.default_rng(seed).uniform(0.0, 2.0 * np.pi, harmonics)
-    c = jnp.asarray(np.concatenate([np.cos(phases), np.sin(phases)]))
-    radius = float(jnp.linalg.norm(c))
-    (value, evaluation), grad = _evaluate(problem, c)
-    if not _feasible(evaluation.achieved, problem.limits):
-        raise ValueError(
-            "the start of the design violates a limit after scaling: "
-            f"{_describe(evaluation.achieved, limits)}; loosen max_angle or max_speed"
+    runs = []
+    for r in range(restarts):
+        phases = np.random.default_rng((seed, r)).uniform(0.0, 2.0 * np.pi, harmonics)
+        c = jnp.asarray(np.concatenate([np.cos(phases), np.sin(phases)]))
+        label = f"design {criterion}" + (f" start {r + 1}/{restarts}" if restarts > 1 else "")
+        runs.append(
+            _ascend(
+                problem, c, iterations, Progress(range(iterations), label=label, enabled=progress)
+            )
         )
-    history = [float(value)]
-    step = 0.3
-    bar = Progress(range(iterations), label=f"design {criterion}", enabled=progress)
-    for _ in bar:
-        direction = grad * (radius / jnp.maximum(jnp.linalg.norm(grad), 1e-300))
-        for _ in range(MAX_BACKTRACKS):
-            trial = c + step * direction
-            trial = trial * (radius / jnp.linalg.norm(trial))  # the scale is free: stay on a sphere
-            (value, trial_evaluation), trial_grad = _evaluate(problem, trial)
-            value = float(value)
-            if value > history[-1] and _feasible(trial_evaluation.achieved, problem.limits):
-                break
-            step *= 0.5
-        else:
-            break  # no ascent step: a (local) optimum
-        c, evaluation, grad = trial, trial_evaluation, trial_grad
-        history.append(value)
-        step = min(STEP_GROWTH * step, 1.0)
-        bar.set_message(f"{criterion} {history[-1]:.4g}")
+    c, evaluation, history = max(runs, key=lambda run: run[2][-1])
 
     out = evaluation.response
     settings = {
@@ -489,6 +478,8 @@ def design_input(
         "ramp": ramp,
         "iterations": int(iterations),
         "seed": int(seed),
+        "restarts": int(restarts),
+        "start_values": [run[2][-1] for run in runs],
         "noise": dict(zip(channels, sigmas.tolist(), strict=True)),
         "effects": list(model.effect_names),
     }
@@ -508,6 +499,40 @@ def design_input(
         settings=settings,
         wall_time=time.perf_counter() - start,
     )
+
+
+def _ascend(problem: _Problem, c: Array, iterations: int, bar: Progress):
+    """Normalised gradient ascent on the sphere ``|c| = const`` with backtracking (module doc).
+
+    Returns the final coefficients, their evaluation and the criterion after each step.
+    """
+    radius = float(jnp.linalg.norm(c))
+    (value, evaluation), grad = _evaluate(problem, c)
+    if not _feasible(evaluation.achieved, problem.limits):
+        limits = dict(zip(LIMITS, np.asarray(problem.limits).tolist(), strict=True))
+        raise ValueError(
+            "the start of the design violates a limit after scaling: "
+            f"{_describe(evaluation.achieved, limits)}; loosen max_angle or max_speed"
+        )
+    history = [float(value)]
+    step = 0.3
+    for _ in bar:
+        direction = grad * (radius / jnp.maximum(jnp.linalg.norm(grad), 1e-300))
+        for _ in range(MAX_BACKTRACKS):
+            trial = c + step * direction
+            trial = trial * (radius / jnp.linalg.norm(trial))  # the scale is free: stay on a sphere
+            (value, trial_evaluation), trial_grad = _evaluate(problem, trial)
+            value = float(value)
+            if value > history[-1] and _feasible(trial_evaluation.achieved, problem.limits):
+                break
+            step *= 0.5
+        else:
+            break  # no ascent step: a (local) optimum
+        c, evaluation, grad = trial, trial_evaluation, trial_grad
+        history.append(value)
+        step = min(STEP_GROWTH * step, 1.0)
+        bar.set_message(f"{problem.criterion} {history[-1]:.4g}")
+    return c, evaluation, history
 
 
 def _feasible(achieved: Array, limits: Array) -> bool:

@@ -71,6 +71,13 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         help="ascent iterations (default: %(default)s)",
     )
     p.add_argument("--seed", type=int, default=0, help="seed of the starting phases")
+    p.add_argument(
+        "--restarts",
+        type=int,
+        default=1,
+        metavar="R",
+        help="random starts to try, keeping the best (default: %(default)s)",
+    )
     p.add_argument("--out", required=True, metavar="INPUT.csv", help="record file to write")
     p.add_argument(
         "--plot",
@@ -112,6 +119,7 @@ def run(args: argparse.Namespace) -> int:
         max_frequency=args.max_frequency,
         iterations=args.iterations,
         seed=args.seed,
+        restarts=args.restarts,
         progress=True,
     )
     rms = result.achieved["rms_torque"]
