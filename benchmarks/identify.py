@@ -22,6 +22,7 @@ from __future__ import annotations
 
 import argparse
 import math
+import os
 import sys
 import time
 from pathlib import Path
@@ -155,6 +156,7 @@ def main(argv=None) -> int:
     parser.add_argument("--out", default=str(RESULTS))
     args = parser.parse_args(argv)
 
+    load_before = os.getloadavg()
     records = make_records(noise=True, seed=0)
     agreement = check_agreement(records)
     print(f"objective agreement jaxflex vs NumPy reference: {agreement:.1e} (relative)")
@@ -177,6 +179,7 @@ def main(argv=None) -> int:
         "jaxflex": runs,
         "targets": {"de_wall_time_s": TARGET_SECONDS, "speedup_vs_scipy": TARGET_SPEEDUP},
         "provenance": provenance(),
+        "load_average": {"start": load_before},  # other work on the machine slows every timing
     }
     de = next((r for r in runs if r["method"] == "de"), None)
     if not args.skip_scipy and de is not None:
@@ -217,6 +220,7 @@ def main(argv=None) -> int:
         results["meets_time_target"] = de["wall_time_s"] <= TARGET_SECONDS
         if "comparison" in results:
             results["meets_speedup_target"] = results["comparison"]["speedup"] >= TARGET_SPEEDUP
+    results["load_average"]["end"] = os.getloadavg()
     write_json(args.out, results, overwrite=True)
     print(f"wrote {args.out}")
     return 0
