@@ -29,7 +29,9 @@ Score (Lagrange-multiplier) test
     conservative). ``β̂ = V⁻¹ g`` estimates the effect's size. The quantised channel enters ``J``
     with all its samples (as if its noise were white with ``σ = q/√12``), which is conservative.
     All candidates share one Jacobian: the model is extended by every candidate at once (at
-    their nulls it is still the fitted model), one forward-mode pass gives every column.
+    their nulls it is still the fitted model), one forward-mode pass gives every column. That
+    extended model always holds the whole library, so every call on the same records — score
+    tests, refits, a discovery run — reuses one compiled function.
 
     A Stribeck velocity ``v_s`` is undefined under the null (``Δτ_s = 0`` switches every ``v_s``
     off): the test profiles it over :meth:`~jaxflex.effects.Stribeck.grid` — a score statistic
@@ -41,7 +43,11 @@ The loop (:func:`discover`)
     every candidate not yet in the model (significant at ``alpha/m``, Bonferroni over the ``m``
     candidates), refit the best few (warm start, a 1-D profile of the new parameters, then
     Levenberg–Marquardt of all), confirm each by the likelihood-ratio test ``LR = C₀ − C₁`` at
-    ``alpha/m`` and a falling BIC (``C + d·ln N``), and add the one with the largest LR. Stop when
+    ``alpha/m`` and a falling BIC (``C + d·ln N``), and add the one with the largest LR. The
+    score test is local: when the misfit is too large for a first-order picture and no score is
+    significant while the residuals are not noise, each candidate's 1-D profile (the fitted
+    parameters re-optimised to first order) is scanned instead. Ties are real: a delay and a
+    first-order lag have the same derivative at their null; the refits tell them apart. Stop when
     no candidate is significant and confirmed. An effect is kept only if the final residuals
     are consistent with the noise or it explained most (:data:`MIN_EXPLAINED`) of the misfit
     above the noise when it was added; otherwise it is withdrawn, and whatever the residuals
@@ -164,15 +170,14 @@ class Candidate:
         """The setting of profile member ``i`` (e.g. ``"v_s=0.1"``), '' for a single effect."""
         if len(self.effects) == 1:
             return ""
-        first, member = self.effects[0], self.effects[i]
+        member = self.effects[i]
         parts = []
         for f in dataclasses.fields(member):
             value = getattr(member, f.name)
-            others = {repr(getattr(e, f.name)) for e in self.effects}
-            if len(others) > 1 and isinstance(value, (int, float, str)):
+            varies = len({repr(getattr(e, f.name)) for e in self.effects}) > 1
+            if varies and isinstance(value, (int, float, str)):
                 parts.append(f"{f.name}={value:g}" if isinstance(value, float) else
                              f"{f.name}={value}")
-        del first
         return ", ".join(parts)
 
 
@@ -599,6 +604,7 @@ class _Engine:
     halfwidth: np.ndarray  # per element: quantisation half-step in units of σ (0: white)
     quantised: np.ndarray  # per element: bool
     tested: tuple[int, ...] = ()  # the candidates (universe indices) to test and add
+    anchor: np.ndarray | None = None  # the run's starting point: where pinned parameters return
     max_iterations: int = LM_STEPS
 
     @classmethod
@@ -637,7 +643,8 @@ class _Engine:
         measured = np.concatenate([np.asarray(m).reshape(-1) for m in objective.measured])
         problem = _Problem(objective, jnp.asarray(measured / sigma), jnp.asarray(sigma))
         tested = tuple(i for i, c in enumerate(pool) if c.name in names)
-        return cls(universe, problem, records, levels, half, half > 0, tested)
+        anchor = np.clip(universe.vector(params), universe.space.lower, universe.space.upper)
+        return cls(universe, problem, records, levels, half, half > 0, tested, anchor)
 
     def candidate(self, name: str) -> int:
         """Universe index of a candidate by name."""
@@ -712,8 +719,31 @@ class _Engine:
             if not best_cost < base_cost * (1 - LM_RTOL):
                 break
             x = self._lm(best, active)
+        x = self._release_bounds(x, active)
         pred = np.asarray(_forward(self.problem, jnp.asarray(x)))
         return x, self.stat_cost(pred)
+
+    def _release_bounds(self, x: np.ndarray, active: Sequence[int]) -> np.ndarray:
+        """Refit once more with base parameters that ended on a bound put back at their start.
+
+        A parameter that compensated a missing effect (a viscous friction pushed to zero) can
+        stay pinned on its bound after the effect is added: on the bound the gradient still
+        points outwards, a local minimum of the constrained problem.
+        """
+        if self.anchor is None:
+            return x
+        u = self.universe
+        base = np.arange(u.n_base)
+        unit = np.asarray(u.space.to_unit(u.space.from_vector(np.where(
+            u.active_mask(active), x, u.space.lower))))[base]
+        pinned = base[(unit <= 1e-9) | (unit >= 1 - 1e-9)]
+        pinned = [i for i in pinned if not np.isclose(x[i], self.anchor[i])]
+        if not pinned:
+            return x
+        trial = x.copy()
+        trial[pinned] = self.anchor[pinned]
+        trial = self._lm(trial, active)
+        return trial if self.forward_cost(trial) < self.forward_cost(x) else x
 
     def forward_cost(self, x: np.ndarray) -> float:
         """The fit cost at ``x`` (one simulation, no derivatives)."""

@@ -242,7 +242,7 @@ def test_add_effect_recovers_the_payload(payload_case):
 # --- the loop ------------------------------------------------------------------------------------
 
 
-def test_discover_adds_the_hidden_payload(payload_case, tmp_path):
+def test_discover_adds_the_hidden_payload(payload_case):
     records, model, params = payload_case
     holdout, _, _ = one("payload", 0.03, seed=9, inputs=("pulse",), amplitudes={"pulse": 0.2})
     report = discover(records, holdout=holdout, initial=START)
@@ -267,13 +267,6 @@ def test_discover_adds_the_hidden_payload(payload_case, tmp_path):
     assert data["unexplained"] is None
     assert "payload" in report.table()
 
-    from jaxflex.plots.discover import save_discovery_report
-
-    paths = save_discovery_report(report, tmp_path / "report")
-    assert all(p.stat().st_size > 0 for p in paths)
-    with pytest.raises(FileExistsError):
-        save_discovery_report(report, tmp_path / "report")
-
 
 def test_discover_validates_its_arguments(payload_case):
     records, _, _ = payload_case
@@ -297,8 +290,14 @@ def test_cli_discover_writes_the_json_contract(payload_case, tmp_path, capsys):
     initial.write_text(json.dumps(START))
     out = tmp_path / "out.json"
     code = main(["discover", *files, "--initial", str(initial), "--effects",
-                 "payload,delay,gravity", "--max-steps", "1", "--json", str(out)])
+                 "payload,delay,gravity", "--max-steps", "1", "--json", str(out),
+                 "--report", str(tmp_path / "report")])
     assert code == 0
+    from jaxflex.plots.discover import report_paths
+
+    written = report_paths([r.name for r in records], tmp_path / "report")
+    assert all(p.stat().st_size > 0 for p in written)
+    assert (tmp_path / "report" / "error_falling.png").stat().st_size > 10_000
     data = json.loads(out.read_text())
     assert [s["added"] for s in data["steps"]] == [None, None, "payload"]
     assert {r["effect"] for r in data["ranking"][0]} == {"payload", "delay", "gravity"}
@@ -308,6 +307,8 @@ def test_cli_discover_writes_the_json_contract(payload_case, tmp_path, capsys):
     assert "unknown effect 'nope'" in capsys.readouterr().err
     assert main(["discover", *files, "--initial", str(initial), "--json", str(out)]) == 2
     assert "exists" in capsys.readouterr().err
+    assert main(["discover", *files, "--initial", str(tmp_path / "none.json")]) == 2
+    assert "fit file not found" in capsys.readouterr().err
 
 
 # --- slow: every effect, clean seeds, non-library effects, two effects, from scratch -----------
