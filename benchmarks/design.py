@@ -25,8 +25,9 @@ from __future__ import annotations
 
 import os
 
-# XLA:CPU's intra-op thread pool can deadlock on the batched simulation (P = 100) on small
-# machines; these two flags avoid it.
+# XLA:CPU's thread pool can wedge on the batched simulation (P = 100) on a 2-core machine.
+# jaxflex turns multi-threaded Eigen off itself; the benchmark also turns off the
+# concurrency-optimised scheduler (set before jaxflex is imported, so both apply).
 os.environ.setdefault(
     "XLA_FLAGS",
     "--xla_cpu_multi_thread_eigen=false --xla_cpu_enable_concurrency_optimized_scheduler=false",
