@@ -7,7 +7,7 @@ to fit on and a weaker pulse held out for validation, with the spec's sensor noi
 give the answer, for whoever wants to check it.
 
 Run ``python benchmarks/make_example_data.py [--check]``; ``--check`` verifies that the bundled
-files are exactly what this script makes (the tests run it).
+files are what this script makes, to the simulator's accuracy (the tests run it).
 """
 
 from __future__ import annotations
@@ -63,6 +63,21 @@ def write(directory: Path, overwrite: bool = False) -> list[Path]:
     return paths
 
 
+def same(a, b) -> bool:
+    """The records agree to the simulator's numerical accuracy: an acceleration within 1e-5 m/s²
+    (the sensor noise is 0.05), an angle within one encoder count at no more than two samples.
+    Another BLAS, XLA version or eigen-solver moves the last digits."""
+    import numpy as np
+
+    if a.metadata != b.metadata or a.columns != b.columns:
+        return False
+    if not (np.array_equal(a.time, b.time) and np.array_equal(a.torque, b.torque)):
+        return False
+    counts = np.round(np.abs(a.joint_angle - b.joint_angle) / (2 * np.pi / 4096))
+    return bool(np.sum(counts > 0) <= 2 and np.all(counts <= 1)
+                and np.allclose(a.tip_acceleration, b.tip_acceleration, rtol=0, atol=1e-5))
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--check", action="store_true",
@@ -76,10 +91,8 @@ def main(argv: list[str] | None = None) -> int:
     with tempfile.TemporaryDirectory() as tmp:
         fresh = write(Path(tmp))
         bad = [p.name for p in fresh
-               if not (args.out / p.name).is_file()
-               or (args.out / p.name).read_text() != p.read_text()]
-        for p in fresh:
-            load_record(p)  # the files must load
+               if not (args.out / p.name).is_file() or not same(load_record(p),
+                                                                load_record(args.out / p.name))]
     if bad:
         print(f"bundled example files differ from the script's output: {bad}", file=sys.stderr)
         return 1
