@@ -10,6 +10,7 @@ Writes ``benchmarks/results/simulate.json``.
 from __future__ import annotations
 
 import argparse
+import os
 import resource
 import sys
 import time
@@ -107,6 +108,7 @@ def main() -> None:
             "numpy": reference,
             "ratio_at_population_100": ratio,
             "peak_rss_mb": peak_memory_mb(),
+            "load_average_1_5_15min_at_end": list(os.getloadavg()),
             **provenance(),
         },
         overwrite=True,
