@@ -32,7 +32,7 @@ from jaxflex.modal import Modes, free_hub_modes
 from jaxflex.model import Model
 from jaxflex.parameters import Params
 
-NEWTON_ITERATIONS = 4
+NEWTON_ITERATIONS = 8
 SCAN_UNROLL = 1
 #: Weight of the end-of-step friction (θ-method): 0.5 is trapezoidal, 1 backward Euler.
 FRICTION_THETA = 0.55
