@@ -459,7 +459,7 @@ def identify(
             "refine": refine,
             "refine_starts": refine_starts,
             "channels": list(objective.channels),
-            "weights": dict(zip(objective.channels, objective.weights, strict=True)),
+            "weights": dict(zip(objective.channels, map(float, objective.weights), strict=True)),
             "bounds": {s.name: [s.lower, s.upper] for s in objective.specs},
             "log_scale": {s.name: s.log_scale for s in objective.specs},
             "seeded": 0 if seeds is None else int(seeds.shape[0]),

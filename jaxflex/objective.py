@@ -68,7 +68,7 @@ class Objective(eqx.Module):
     specs: tuple[ParameterSpec, ...] = eqx.field(static=True)  # free parameters, search bounds
     fixed: dict[str, Array]
     channels: tuple[str, ...] = eqx.field(static=True)
-    weights: tuple[float, ...] = eqx.field(static=True)
+    weights: Float[Array, " C"]  # a runtime value: other weights reuse the compiled code
     record_names: tuple[str, ...] = eqx.field(static=True)
     groups: tuple[tuple[int, ...], ...] = eqx.field(static=True)  # record indices per length
     dt: float = eqx.field(static=True)
@@ -287,7 +287,7 @@ def build_objective(
         specs=specs,
         fixed=fixed_values,
         channels=channels,
-        weights=weight_values,
+        weights=jnp.asarray(weight_values),
         record_names=dataset.names,
         groups=tuple(tuple(m) for m in lengths.values()),
         dt=dataset.dt,
