@@ -1355,7 +1355,12 @@ def discover(
     steps, withdrawn = _withdraw(steps)
     unexplained = steps[-1].diagnosis.unexplained()
     if unexplained is not None:
-        note = "no candidate effect explains it"
+        if steps[-1].ranking or withdrawn:
+            note = "no candidate effect explains it"
+        elif sum(s.added is not None for s in steps) >= max_steps:
+            note = f"the loop stopped at max_steps={max_steps} before testing more candidates"
+        else:
+            note = "every candidate is in the model already"
         if withdrawn:
             note += (f" ({', '.join(withdrawn)} reduced the misfit but left most of it; "
                      "withdrawn)")
