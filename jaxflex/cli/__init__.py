@@ -27,6 +27,27 @@ class UsageError(ValueError):
     """A problem with the command line or its input files that the user can fix."""
 
 
+def load_records(paths: Sequence[str], *, resample: bool):
+    """Records from files and directories; a missing or malformed file is a UsageError."""
+    from pathlib import Path
+
+    from jaxflex.data import Dataset, RecordError, load_dataset, load_record
+
+    records = []
+    try:
+        for name in paths:
+            path = Path(name)
+            if not path.exists():
+                raise UsageError(f"{path}: record file not found")
+            if path.is_dir():
+                records += list(load_dataset(path, resample=resample))
+            else:
+                records.append(load_record(path, resample=resample))
+        return Dataset(records)
+    except RecordError as exc:  # speak the command line's language
+        raise UsageError(str(exc).replace("resample=True", "--resample")) from None
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="jaxflex",

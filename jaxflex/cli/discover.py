@@ -14,8 +14,7 @@ import json
 from pathlib import Path
 
 from jaxflex._io import check_writable, write_json
-from jaxflex.cli import UsageError
-from jaxflex.data import Dataset, RecordError, load_dataset, load_record
+from jaxflex.cli import UsageError, load_records
 from jaxflex.model import Model
 
 HELP = "find the physical effects the model is missing: score tests, add, refit, report"
@@ -66,8 +65,8 @@ def run(args: argparse.Namespace) -> int:
         candidate_set(candidates)  # unknown names fail here, listing the known ones
     if args.json:
         check_writable(args.json, args.overwrite)
-    records = _load(args.data, resample=args.resample)
-    holdout = _load(args.holdout, resample=args.resample) if args.holdout else None
+    records = load_records(args.data, resample=args.resample)
+    holdout = load_records(args.holdout, resample=args.resample) if args.holdout else None
     model, initial = None, None
     if args.initial:
         model, initial = _load_fit(Path(args.initial))
@@ -116,22 +115,3 @@ def _load_fit(path: Path):
         message = str(exc.args[0] if isinstance(exc, KeyError) and exc.args else exc)
         raise UsageError(f"cannot use the fit {path}: {message}") from None
     return model, params
-
-
-def _load(paths, *, resample: bool) -> Dataset:
-    records = []
-    for name in paths:
-        path = Path(name)
-        if not path.exists():
-            raise UsageError(f"{path}: record file not found")
-        try:
-            if path.is_dir():
-                records += list(load_dataset(path, resample=resample))
-            else:
-                records.append(load_record(path, resample=resample))
-        except RecordError as exc:
-            raise UsageError(str(exc).replace("resample=True", "--resample")) from None
-    try:
-        return Dataset(records)
-    except RecordError as exc:
-        raise UsageError(str(exc)) from None

@@ -10,8 +10,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from jaxflex.cli import UsageError
-from jaxflex.data import Dataset, RecordError, load_dataset, load_record
+from jaxflex.cli import UsageError, load_records
 
 HELP = "identify the parameters from measured records (DE, GA or PSO + refinement)"
 
@@ -84,26 +83,6 @@ def run(args: argparse.Namespace) -> int:
         save_figure(plot_fit(fit), plot, overwrite=args.overwrite)
         print(f"wrote {plot}")
     return 0
-
-
-def load_records(paths: list[str], *, resample: bool) -> Dataset:
-    """Records from files and directories; a missing or malformed file is a UsageError."""
-    records = []
-    for name in paths:
-        path = Path(name)
-        if not path.exists():
-            raise UsageError(f"{path}: record file not found")
-        try:
-            if path.is_dir():
-                records += list(load_dataset(path, resample=resample))
-            else:
-                records.append(load_record(path, resample=resample))
-        except RecordError as exc:
-            raise UsageError(str(exc)) from None
-    try:
-        return Dataset(records)
-    except RecordError as exc:
-        raise UsageError(str(exc)) from None
 
 
 def model_from(effects: list[str]):

@@ -9,11 +9,10 @@ from __future__ import annotations
 
 import argparse
 
-from jaxflex.cli import UsageError
+from jaxflex.cli import UsageError, load_records
 from jaxflex.cli.identify import (
     _check_figure,
     add_search_arguments,
-    load_records,
     model_from,
     search_options,
 )

@@ -10,9 +10,8 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from jaxflex.cli import UsageError
+from jaxflex.cli import UsageError, load_records
 from jaxflex.compare import DEFAULT_T_END, FRFSettings, compare
-from jaxflex.data import Dataset, RecordError, load_dataset, load_record
 
 HELP = "compare a fitted model with measured records: metrics table and figures"
 
@@ -75,7 +74,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
 
 def run(args: argparse.Namespace) -> int:
     fit, model = _load_fit(Path(args.fit))
-    records = _load_records(args.data, resample=args.resample)
+    records = load_records(args.data, resample=args.resample)
     frf = FRFSettings(
         f_max=args.f_max, **({"min_input_db": None, "min_coherence": None} if args.raw_frf else {})
     )
@@ -113,19 +112,3 @@ def _load_fit(path: Path):
         where = "" if message.startswith(str(path)) else f"{path}: "
         raise UsageError(f"cannot use the fit: {where}{message}") from None
     return fit, model
-
-
-def _load_records(paths: list[str], *, resample: bool) -> Dataset:
-    records = []
-    for name in paths:
-        path = Path(name)
-        if not path.exists():
-            raise UsageError(f"{path}: record file not found")
-        try:
-            if path.is_dir():
-                records += list(load_dataset(path, resample=resample))
-            else:
-                records.append(load_record(path, resample=resample))
-        except RecordError as exc:  # speak the command line's language
-            raise UsageError(str(exc).replace("resample=True", "--resample")) from None
-    return Dataset(records)
