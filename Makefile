@@ -29,6 +29,8 @@ test: $(VENV)/.stamp-dev lint
 bench: $(VENV)/.stamp-dev
 	$(PY) benchmarks/simulate.py
 	$(PY) benchmarks/identify.py
+	$(PY) benchmarks/design.py
+	$(PY) benchmarks/discover.py
 
 clean:
 	rm -rf $(VENV) demo-output .pytest_cache .ruff_cache
