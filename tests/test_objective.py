@@ -52,7 +52,9 @@ def test_zero_at_the_truth_of_noise_free_records(clean):
     objective = build_objective(clean)
     r = residuals_jit(objective, TRUTH)
     assert r.shape == (3 * 2 * clean[0].n_samples,) == (objective.size,)
-    assert float(jnp.max(jnp.abs(r))) < 1e-10
+    # round-off only: stick phases amplify it to ~1e-10 of the channel scale on some CPUs,
+    # still six orders below the sensor noise and the effect of a wrong parameter
+    assert float(jnp.max(jnp.abs(r))) < 1e-8
     assert float(cost_jit(objective, OTHER)) > 1e-4
 
 
@@ -117,7 +119,7 @@ def test_fixed_parameters_and_bounds(clean):
     assert objective.names == ("E", "J_h", "b_v", "tau_c", "alpha")
     assert objective.space["J_h"].upper == 1e-2
     free = {k: v for k, v in TRUTH.items() if k != "beta"}
-    assert float(cost_jit(objective, free)) < 1e-20
+    assert float(cost_jit(objective, free)) < 1e-16  # round-off (see above)
     wrong_beta = build_objective(clean, fixed={"beta": 2 * TRUTH["beta"]})
     assert float(cost_jit(wrong_beta, free)) > 1e-8
 
