@@ -5,6 +5,7 @@ from __future__ import annotations
 import json
 import os
 import platform
+import re
 import tempfile
 from collections.abc import Callable
 from pathlib import Path
@@ -13,6 +14,12 @@ from typing import Any
 
 class OutputExistsError(FileExistsError):
     """Raised when an output file exists and overwriting was not asked for."""
+
+
+def safe_stem(name: str) -> str:
+    """A record name as a file-name stem (characters other than letters, digits, ``.-_``
+    become ``_``)."""
+    return re.sub(r"[^\w.-]+", "_", name).strip("._") or "record"
 
 
 def check_writable(path: str | os.PathLike, overwrite: bool) -> Path:

@@ -34,7 +34,7 @@ from jaxtyping import ArrayLike, Bool, Complex, Float
 
 from jaxflex._io import provenance, to_jsonable
 from jaxflex.data import OUTPUT_COLUMNS, Dataset, Record
-from jaxflex.metrics import _window, frf_nrmse, h1_frf, nrmse, relative_error
+from jaxflex.metrics import frf_nrmse, h1_frf, nrmse, relative_error, spectral_window
 from jaxflex.modal import free_hub_modes
 from jaxflex.model import Model
 from jaxflex.simulate import Outputs, simulate
@@ -468,7 +468,7 @@ def _frf(record: Record, simulated_acc: np.ndarray, settings: FRFSettings) -> FR
 
 def _input_power(torque: np.ndarray, window: str | None) -> np.ndarray:
     """``|X_k|²`` of the one-segment estimate (mean removed, windowed), as h1_frf forms it."""
-    taper = _window(window or "boxcar", torque.size)
+    taper = spectral_window(window or "boxcar", torque.size)
     return np.abs(np.fft.rfft((torque - torque.mean()) * taper)) ** 2
 
 
@@ -478,7 +478,7 @@ def _frf_noise_floor(record: Record, frf: FRF, settings: FRFSettings, accel_sigm
     Noise of variance ``σ²`` adds ``N_k/X_k`` to each bin, with ``E|N_k|² = σ² Σ w²``; to first
     order it changes ``|H|`` by the component along ``H``, of variance ``σ² Σ w² / (2|X_k|²)``.
     """
-    taper = _window(settings.window or "boxcar", record.n_samples)
+    taper = spectral_window(settings.window or "boxcar", record.n_samples)
     power = _input_power(record.torque, settings.window)[frf.compared]
     spread = accel_sigma**2 * np.sum(taper**2) / (2.0 * power)
     return _percent_of_rms(math.sqrt(float(np.mean(spread))), np.abs(frf.measured[frf.compared]))

@@ -71,7 +71,7 @@ def h1_frf(
     if not 0 <= _real(overlap, "overlap") < 1:
         raise ValueError(f"overlap={overlap!r} must be a fraction in [0, 1)")
     step = nperseg - int(overlap * nperseg)
-    taper = _window(window, int(nperseg))
+    taper = spectral_window(window, int(nperseg))
     starts = range(0, n - nperseg + 1, step)
     segments = np.stack([np.stack([x[s : s + nperseg], y[s : s + nperseg]]) for s in starts])
     segments = segments - segments.mean(axis=-1, keepdims=True)
@@ -155,11 +155,12 @@ def _rms(a: np.ndarray) -> float:
     return float(np.sqrt(np.mean(np.square(a))))
 
 
-def _window(name: str, n: int) -> np.ndarray:
-    """Periodic (DFT-even) window as ``scipy.signal.get_window`` returns for spectra."""
+def spectral_window(name: str, n: int) -> np.ndarray:
+    """Periodic (DFT-even) ``"hann"`` or ``"boxcar"`` window of ``n`` samples, as
+    ``scipy.signal.get_window`` returns for spectra."""
     if name == "boxcar":
         return np.ones(n)
     return 0.5 - 0.5 * np.cos(2 * np.pi * np.arange(n) / n)
 
 
-__all__ = ["frf_nrmse", "h1_frf", "nrmse", "relative_error"]
+__all__ = ["frf_nrmse", "h1_frf", "nrmse", "relative_error", "spectral_window"]

@@ -47,6 +47,16 @@ def new_figure(
     return fig, axes
 
 
+def figure_axes(
+    ax: Axes | None, *, figsize: tuple[float, float] = (6.0, 3.5), dpi: float = 100.0
+) -> tuple[Figure, Axes]:
+    """``ax`` and its figure, or a new single-axes figure when ``ax`` is None."""
+    if ax is not None:
+        return ax.figure, ax
+    fig, axes = new_figure(1, 1, figsize=figsize, dpi=dpi)
+    return fig, axes[0, 0]
+
+
 def style(ax: Axes) -> Axes:
     """Light grid behind the data, no top/right spines."""
     ax.grid(True, color="0.9", linewidth=0.8)
@@ -75,4 +85,6 @@ def save_figure(
     )
 
 
-__all__ = ["MARK", "MEASURED", "MODEL", "RESIDUAL", "new_figure", "save_figure", "style"]
+__all__ = [
+    "MARK", "MEASURED", "MODEL", "RESIDUAL", "figure_axes", "new_figure", "save_figure", "style"
+]

@@ -13,14 +13,13 @@ simulated outputs); no metric is computed here.
 from __future__ import annotations
 
 import os
-import re
 from collections.abc import Sequence
 from pathlib import Path
 
 import numpy as np
 from matplotlib.figure import Figure
 
-from jaxflex._io import check_writable, write_json, write_text
+from jaxflex._io import check_writable, safe_stem, write_json, write_text
 from jaxflex.compare import FRF, Comparison
 from jaxflex.data import OUTPUT_COLUMNS, Record
 from jaxflex.plots._style import MARK, MEASURED, MODEL, RESIDUAL, new_figure, save_figure
@@ -250,7 +249,7 @@ def report_paths(
     """The files :func:`save_report` writes for records ``names``: ``table.txt``,
     ``comparison.json``, ``<record>_time.<fmt>`` for each record, then ``frf.<fmt>``."""
     directory = Path(directory)
-    stems = [f"{_safe_stem(n)}_time" for n in names]
+    stems = [f"{safe_stem(n)}_time" for n in names]
     if len(set(stems)) != len(stems):
         raise ValueError(f"record names {list(names)} map to clashing file names")
     figures = [directory / f"{s}.{fmt}" for s in stems] + [directory / f"frf.{fmt}"]
@@ -260,12 +259,6 @@ def report_paths(
 def _db(h: np.ndarray) -> np.ndarray:
     with np.errstate(divide="ignore", invalid="ignore"):
         return 20.0 * np.log10(np.abs(h))
-
-
-def _safe_stem(name: str) -> str:
-    """A record name as a file-name stem (characters other than letters, digits, ``.-_``
-    become ``_``)."""
-    return re.sub(r"[^\w.-]+", "_", name).strip("._") or "record"
 
 
 __all__ = ["plot_frf", "plot_time", "report_paths", "save_report"]

@@ -28,22 +28,15 @@ from jaxflex.diagnose import (
     Localisation,
     ResidualSpectrum,
 )
-from jaxflex.plots._style import MARK, MEASURED, MODEL, RESIDUAL, new_figure, style
+from jaxflex.plots._style import MARK, MEASURED, MODEL, RESIDUAL, figure_axes, new_figure, style
 
 _LABELS = {"joint_angle": "joint angle", "tip_acceleration": "tip acceleration"}
 _AFTER = "tab:green"
 
 
-def _axes(ax: Axes | None, figsize=(6.0, 3.5)) -> tuple[Figure, Axes]:
-    if ax is not None:
-        return ax.figure, ax
-    fig, axes = new_figure(1, 1, figsize=figsize)
-    return fig, axes[0, 0]
-
-
 def plot_autocorrelation(acf: Autocorrelation, ax: Axes | None = None, title: str = "") -> Figure:
     """Stem plot of ``ρ_k`` over the lag (ms) with the ``±1.96/√N`` band; Ljung–Box in the title."""
-    fig, ax = _axes(ax)
+    fig, ax = figure_axes(ax)
     lag_ms = 1e3 * acf.lags * acf.dt
     ax.vlines(lag_ms, 0.0, acf.values, color=RESIDUAL, lw=1.2)
     ax.plot(lag_ms, acf.values, "o", color=RESIDUAL, ms=2.5)
@@ -61,7 +54,7 @@ def plot_cross_correlation(
     xc: CrossCorrelation, ax: Axes | None = None, title: str = ""
 ) -> Figure:
     """Residual–torque correlation over lag (ms), the band and the peak lag."""
-    fig, ax = _axes(ax)
+    fig, ax = figure_axes(ax)
     lag_ms = 1e3 * xc.lags * xc.dt
     ax.plot(lag_ms, xc.values, color=RESIDUAL, lw=1.2)
     ax.axhspan(-xc.band, xc.band, color="0.85", zorder=0, label="95 % band")
@@ -83,7 +76,7 @@ def plot_spectrum(
     unit: str = "",
 ) -> Figure:
     """Residual PSD (log scale) with the white-noise floor and the peaks above it labelled."""
-    fig, ax = _axes(ax)
+    fig, ax = figure_axes(ax)
     sel = spectrum.freqs > 0
     if f_max is not None:
         sel &= spectrum.freqs <= f_max
@@ -107,7 +100,7 @@ def plot_localisation(loc: Localisation, ax: Axes | None = None, title: str = ""
     A bar beyond 1 (the dashed line) marks a condition or time window where the misfit is
     denser than on average.
     """
-    fig, ax = _axes(ax, figsize=(6.0, 5.0))
+    fig, ax = figure_axes(ax, figsize=(6.0, 5.0))
     items = list(loc.conditions) + list(loc.windows)
     names = [c.condition for c in items]
     values = [c.concentration for c in items]

@@ -17,10 +17,9 @@ from pathlib import Path
 
 from matplotlib.figure import Figure
 
-from jaxflex._io import check_writable, write_json, write_text
+from jaxflex._io import check_writable, safe_stem, write_json, write_text
 from jaxflex.discover import DiscoveryReport
 from jaxflex.plots._style import save_figure
-from jaxflex.plots.compare import _safe_stem
 from jaxflex.plots.diagnose import plot_diagnosis, plot_error_falling, plot_overlay
 
 
@@ -56,7 +55,7 @@ def report_paths(names: Sequence[str], directory: str | os.PathLike,
                  fmt: str = "png") -> tuple[Path, ...]:
     """The files :func:`save_discovery_report` writes for a run on records ``names``."""
     directory = Path(directory)
-    stems = [_safe_stem(n) for n in names]
+    stems = [safe_stem(n) for n in names]
     if len(set(stems)) != len(stems):
         raise ValueError(f"record names {list(names)} map to clashing file names")
     return (

@@ -20,7 +20,7 @@ from matplotlib.figure import Figure
 from matplotlib.ticker import MaxNLocator
 
 from jaxflex.identify import Fit
-from jaxflex.plots._style import MARK, MODEL, RESIDUAL, new_figure
+from jaxflex.plots._style import MARK, MODEL, RESIDUAL, figure_axes, new_figure
 
 METHOD_COLOURS = {"de": "tab:blue", "ga": "tab:green", "pso": "tab:purple"}
 
@@ -51,11 +51,7 @@ def plot_convergence(
     grouped = _histories(runs)
     if not grouped or not any(len(v) for v in grouped.values()):
         raise ValueError("plot_convergence needs at least one run")
-    if ax is None:
-        fig, axes = new_figure(figsize=figsize, dpi=dpi)
-        ax = axes[0, 0]
-    else:
-        fig = ax.figure
+    fig, ax = figure_axes(ax, figsize=figsize, dpi=dpi)
     for i, (method, histories) in enumerate(grouped.items()):
         colour = METHOD_COLOURS.get(method.lower(), f"C{i}")
         for h in histories:
@@ -88,11 +84,7 @@ def plot_intervals(
     """Each parameter's interval scaled to ±1, labelled with its spread; ``truth`` marked."""
     if not fit.intervals:
         raise ValueError("this fit has no intervals (identify(..., intervals=True) computes them)")
-    if ax is None:
-        fig, axes = new_figure(figsize=figsize, dpi=dpi)
-        ax = axes[0, 0]
-    else:
-        fig = ax.figure
+    fig, ax = figure_axes(ax, figsize=figsize, dpi=dpi)
     names = list(fit.intervals)
     log = dict(zip(fit.names, fit.identifiability.get("coordinates", ()), strict=False))
     y = np.arange(len(names))[::-1]
