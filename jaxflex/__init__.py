@@ -18,6 +18,16 @@ jax.config.update("jax_enable_x64", True)
 
 from jaxflex.compare import Comparison, compare, fit_and_validate, noise_floor  # noqa: E402
 from jaxflex.data import Dataset, Record, load_dataset, load_record, save_record  # noqa: E402
+from jaxflex.design import DesignResult, design_input, predicted_intervals  # noqa: E402
+from jaxflex.diagnose import Diagnosis, diagnose  # noqa: E402
+from jaxflex.discover import (  # noqa: E402
+    DiscoveryReport,
+    add_effect,
+    discover,
+    load_example,
+    refit,
+    score_tests,
+)
 from jaxflex.effects import EFFECTS, Effect, get_effect, library  # noqa: E402
 from jaxflex.frf import frf, mode_shapes, natural_frequencies  # noqa: E402
 from jaxflex.identify import Fit, identify, load_fit  # noqa: E402
@@ -29,6 +39,7 @@ from jaxflex.parameters import (  # noqa: E402
     base_space,
     reference_parameters,
 )
+from jaxflex.rigid import RigidEstimate, estimate_rigid, warm_start  # noqa: E402
 from jaxflex.signals import reference_input  # noqa: E402
 from jaxflex.simulate import Outputs, simulate, simulate_batch  # noqa: E402
 from jaxflex.synthetic import make_records  # noqa: E402
@@ -41,6 +52,9 @@ __all__ = [
     "EFFECTS",
     "Comparison",
     "Dataset",
+    "DesignResult",
+    "Diagnosis",
+    "DiscoveryReport",
     "Effect",
     "Fit",
     "Model",
@@ -48,24 +62,35 @@ __all__ = [
     "ParameterSpace",
     "ParameterSpec",
     "Record",
+    "RigidEstimate",
     "Testbed",
+    "add_effect",
     "base_space",
     "compare",
+    "design_input",
+    "diagnose",
+    "discover",
+    "estimate_rigid",
     "fit_and_validate",
     "frf",
     "get_effect",
     "identify",
     "library",
     "load_dataset",
+    "load_example",
     "load_fit",
     "load_record",
     "make_records",
     "mode_shapes",
     "natural_frequencies",
     "noise_floor",
+    "predicted_intervals",
     "reference_input",
     "reference_parameters",
+    "refit",
     "save_record",
+    "score_tests",
     "simulate",
     "simulate_batch",
+    "warm_start",
 ]
