@@ -23,8 +23,9 @@ demo: $(VENV)/.stamp-runtime
 lint: $(VENV)/.stamp-dev
 	$(PY) -m ruff check jaxflex tests benchmarks
 
+# The test workers already fill the cores: one JAX CPU device per worker (see jaxflex.parallel).
 test: $(VENV)/.stamp-dev lint
-	$(PY) -m pytest -n $(PYTEST_WORKERS) -m "not slow" tests
+	JAXFLEX_HOST_DEVICES=1 $(PY) -m pytest -n $(PYTEST_WORKERS) -m "not slow" tests
 
 bench: $(VENV)/.stamp-dev
 	$(PY) benchmarks/simulate.py

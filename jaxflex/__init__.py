@@ -1,8 +1,10 @@
 """jaxflex: identify flexible-link manipulators by differentiable simulation.
 
-Importing jaxflex switches JAX to float64 (structural dynamics with stiff FEM modes needs it)
-and, unless ``XLA_FLAGS`` already says otherwise, turns off XLA's multi-threaded Eigen on the
-CPU, whose thread pool can wedge on vmapped programs on small machines.
+Importing jaxflex switches JAX to float64 (structural dynamics with stiff FEM modes needs it),
+exposes one JAX CPU device per usable core so that populations run on all of them (see
+:mod:`jaxflex.parallel`; ``JAXFLEX_HOST_DEVICES=1`` turns it off) and, unless ``XLA_FLAGS``
+already says otherwise, turns off XLA's multi-threaded Eigen on the CPU, whose thread pool can
+wedge on vmapped programs on small machines.
 """
 
 import os
@@ -15,6 +17,10 @@ if "xla_cpu_multi_thread_eigen" not in os.environ.get("XLA_FLAGS", ""):
 import jax  # noqa: E402
 
 jax.config.update("jax_enable_x64", True)
+
+from jaxflex.parallel import configure_host_devices  # noqa: E402
+
+configure_host_devices()
 
 from jaxflex.compare import Comparison, compare, fit_and_validate, noise_floor  # noqa: E402
 from jaxflex.data import Dataset, Record, load_dataset, load_record, save_record  # noqa: E402

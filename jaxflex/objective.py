@@ -32,6 +32,7 @@ from jaxtyping import Array, ArrayLike, Float, Scalar
 from jaxflex.data import Dataset, Record
 from jaxflex.evolve._base import sanitize_fitness
 from jaxflex.model import Model
+from jaxflex.parallel import population_vmap
 from jaxflex.parameters import ParameterSpace, ParameterSpec, Params
 from jaxflex.simulate import OUTPUT_NAMES, simulate_core
 
@@ -143,8 +144,9 @@ class Objective(eqx.Module):
         return self.residuals(self.from_unconstrained(z))
 
     def fitness(self, population: Float[Array, "P d"]) -> Float[Array, " P"]:
-        """Cost of every unit-box candidate, one vmapped call; non-finite → ``+inf``."""
-        return sanitize_fitness(jax.vmap(self.unit_cost)(population))
+        """Cost of every unit-box candidate, one vmapped call split across the host's cores
+        (:mod:`jaxflex.parallel`); non-finite → ``+inf``."""
+        return sanitize_fitness(population_vmap(self.unit_cost, population))
 
     # --- layout (NumPy, for noise estimates and reports) ------------------------------------
     def layout(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:

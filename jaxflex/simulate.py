@@ -30,6 +30,7 @@ from jaxtyping import Array, ArrayLike, Float, Scalar
 
 from jaxflex.modal import Modes, free_hub_modes
 from jaxflex.model import Model
+from jaxflex.parallel import population_vmap
 from jaxflex.parameters import Params
 
 NEWTON_ITERATIONS = 8
@@ -312,7 +313,7 @@ def _simulate_jit(model: Model, params: Params, torque: Array, dt: float) -> Out
 
 @eqx.filter_jit
 def _simulate_batch_jit(model: Model, params: Params, torque: Array, dt: float) -> Outputs:
-    return jax.vmap(simulate_core, in_axes=(None, 0, None, None))(model, params, torque, dt)
+    return population_vmap(lambda p, t: simulate_core(model, p, t, dt), params, torque)
 
 
 def _check_inputs(model: Model, params: Mapping[str, ArrayLike], torque, dt, batched: bool):
@@ -364,7 +365,8 @@ def simulate_batch(
 ) -> Outputs:
     """Simulate a population at once: each parameter is a 1-D array of ``P`` candidates.
 
-    The whole population is one vmapped, JIT-compiled call; outputs have shape ``(P, n)``.
+    The whole population is one vmapped, JIT-compiled call, split across the host's cores
+    (:mod:`jaxflex.parallel`); outputs have shape ``(P, n)``.
     """
     values, torque, dt = _check_inputs(model, params, torque, dt, batched=True)
     return _simulate_batch_jit(model, values, torque, dt)

@@ -24,6 +24,7 @@ import numpy as np
 from jaxtyping import Array, ArrayLike, Float, Int, PRNGKeyArray
 
 from jaxflex._progress import Progress
+from jaxflex.parallel import gathered
 
 FitnessFn = Callable[[Float[Array, "P d"]], Float[Array, " P"]]
 
@@ -265,12 +266,12 @@ def _summary(state: State) -> tuple[Float[Array, ""], Float[Array, ""], Float[Ar
 
 
 def _init_program(strategy, key, dim, fitness_fn, init_population):
-    state = strategy.init(key, dim, fitness_fn, init_population)
+    state = gathered(strategy.init(key, dim, fitness_fn, init_population))
     return state, _summary(state)
 
 
 def _step_program(strategy, state, key, fitness_fn):
-    state = strategy.step(state, key, fitness_fn)
+    state = gathered(strategy.step(state, key, fitness_fn))  # the layout the step expects
     return state, _summary(state)
 
 

@@ -1,0 +1,149 @@
+"""Populations spread over the host's CPU cores.
+
+XLA runs one program on one CPU device single-threaded for programs as small as a time step of
+the simulator, so a vmapped population uses one core. Importing jaxflex therefore exposes one
+JAX CPU device per usable core (:func:`configure_host_devices`), and :func:`population_vmap`
+splits the leading population axis across them: each device runs its share of the candidates in
+its own thread, inside the same compiled program (a DE/GA/PSO generation stays one call).
+
+The number of devices comes from ``JAXFLEX_HOST_DEVICES`` if set, else the cores this process
+may use (at most :data:`MAX_HOST_DEVICES`). Nothing changes if JAX was already started, if the
+user set ``jax_num_cpu_devices`` or ``--xla_force_host_platform_device_count`` themselves, or on
+a machine whose default backend is an accelerator (one device there: no split).
+"""
+
+from __future__ import annotations
+
+import os
+from collections.abc import Callable
+from typing import TypeVar
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+from jax.sharding import Mesh, NamedSharding, PartitionSpec
+
+MAX_HOST_DEVICES = 8
+"""Upper bound on the CPU devices jaxflex asks for by default."""
+BLOCK = 100
+"""Candidates one device simulates at once; larger shares run block after block (``lax.map``),
+which keeps the working set in cache (measured on the CPU: 100 at a time is ~20 % faster per
+candidate than 500 at once)."""
+MIN_PER_DEVICE = 16
+"""Smaller populations are not split: below it, waiting for the other devices costs more than
+their help (measured on 2 cores: 10 candidates run 25 % slower split in two, 100 run 35 %
+faster)."""
+AXIS = "population"
+
+T = TypeVar("T")
+
+
+def default_host_devices() -> int:
+    """``JAXFLEX_HOST_DEVICES`` if set (an integer >= 1), else the usable cores (<= 8)."""
+    value = os.environ.get("JAXFLEX_HOST_DEVICES")
+    if value is not None:
+        try:
+            count = int(value)
+        except ValueError:
+            count = 0
+        if count < 1:
+            raise ValueError(f"JAXFLEX_HOST_DEVICES={value!r} must be an integer >= 1")
+        return count
+    try:
+        cores = len(os.sched_getaffinity(0))
+    except AttributeError:  # not on Linux
+        cores = os.cpu_count() or 1
+    return max(1, min(cores, MAX_HOST_DEVICES))
+
+
+def configure_host_devices(count: int | None = None) -> int:
+    """Ask JAX for ``count`` CPU devices (default :func:`default_host_devices`) before it starts.
+
+    Returns the number of CPU devices JAX will have: unchanged when JAX is already running or
+    the user chose a number themselves.
+    """
+    user_flag = "xla_force_host_platform_device_count" in os.environ.get("XLA_FLAGS", "")
+    if user_flag or jax.config.jax_num_cpu_devices != -1:
+        return len(jax.devices("cpu"))
+    count = default_host_devices() if count is None else int(count)
+    try:
+        jax.config.update("jax_num_cpu_devices", count)
+    except RuntimeError:  # backends already initialised: keep what the user has
+        pass
+    return len(jax.devices("cpu"))
+
+
+def population_devices() -> list[jax.Device]:
+    """The devices a population is split across: all of the default backend's."""
+    return jax.devices()
+
+
+def _mesh() -> Mesh:
+    return Mesh(np.asarray(population_devices()), (AXIS,))
+
+
+def gathered(tree: T) -> T:
+    """``tree`` with every array on every device (inside ``jit``: a sharding constraint).
+
+    Programs that pass their outputs back in as inputs (a generation step) use it so that the
+    layout of what they return matches the layout they were compiled for.
+    """
+    if len(population_devices()) == 1:
+        return tree
+    sharding = NamedSharding(_mesh(), PartitionSpec())
+    return jax.tree.map(lambda x: jax.lax.with_sharding_constraint(x, sharding), tree)
+
+
+def _population_size(population) -> int:
+    leaves = jax.tree.leaves(population)
+    if not leaves or any(jnp.ndim(x) == 0 for x in leaves):
+        raise ValueError("a population needs at least one array with a leading population axis")
+    return leaves[0].shape[0]
+
+
+def _blockwise(fn: Callable[..., T], population, *args) -> T:
+    """vmap of ``fn`` over the population, :data:`BLOCK` candidates at a time."""
+    if _population_size(population) > BLOCK:
+        return jax.lax.map(lambda x: fn(x, *args), population, batch_size=BLOCK)
+    return jax.vmap(fn, in_axes=(0,) + (None,) * len(args))(population, *args)
+
+
+def population_vmap(fn: Callable[..., T], population, *args) -> T:
+    """``jax.vmap(fn, (0, None, ...))(population, *args)``, split across :func:`population_devices`.
+
+    ``population`` is an array (or a pytree of arrays) with the population on its leading axis;
+    the other ``args`` are shared by every candidate. The population is padded (with copies of
+    its first candidate) to a multiple of the device count, each device computes its share,
+    :data:`BLOCK` candidates at a time, and the results (those of the plain vmap) are gathered
+    onto every device. Works inside ``jit`` and outside it.
+    """
+    devices = population_devices()
+    size = _population_size(population)
+    if len(devices) == 1 or size < MIN_PER_DEVICE * len(devices):
+        return _blockwise(fn, population, *args)
+    pad = -size % len(devices)
+    if pad:
+        population = jax.tree.map(
+            lambda x: jnp.concatenate([x, jnp.broadcast_to(x[:1], (pad, *x.shape[1:]))]),
+            population,
+        )
+    split = jax.shard_map(
+        lambda population, *args: _blockwise(fn, population, *args),
+        mesh=_mesh(),
+        in_specs=(PartitionSpec(AXIS),) + (PartitionSpec(),) * len(args),
+        out_specs=PartitionSpec(AXIS),
+        check_vma=False,
+    )
+    return gathered(jax.tree.map(lambda y: y[:size], split(population, *args)))
+
+
+__all__ = [
+    "BLOCK",
+    "MAX_HOST_DEVICES",
+    "MIN_PER_DEVICE",
+    "configure_host_devices",
+    "default_host_devices",
+    "gathered",
+    "population_devices",
+    "population_vmap",
+]

@@ -1,0 +1,88 @@
+"""Populations split across CPU devices give the results of one plain vmap."""
+
+import os
+import subprocess
+import sys
+import textwrap
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from jaxflex.parallel import BLOCK, default_host_devices, population_vmap
+
+SPLIT_CHECKS = textwrap.dedent(
+    """
+    import jax, jax.numpy as jnp, numpy as np
+    import jaxflex
+    from jaxflex import Model, make_records, simulate_batch
+    from jaxflex.evolve import DE, PSO, run
+    from jaxflex.objective import build_objective
+    from jaxflex.parallel import population_vmap
+    from jaxflex.signals import reference_input
+    from jaxflex.simulate import simulate_core
+
+    assert len(jax.devices()) == 3, jax.devices()
+    # a population of 49 is padded to 51 and split three ways: the plain vmap's outputs
+    model = Model()
+    torque = reference_input("pulse", duration=0.3)[1]
+    params = model.space.from_unit(np.random.default_rng(4).uniform(size=(49, 6)))
+    plain = jax.jit(jax.vmap(lambda p: simulate_core(model, p, jnp.asarray(torque), 1e-3)))
+    want, got = plain(params), simulate_batch(model, params, torque)
+    for name in ("joint_angle", "tip_acceleration", "joint_torque"):
+        a, b = np.asarray(getattr(got, name)), np.asarray(getattr(want, name))
+        assert a.shape == b.shape == (49, torque.size)
+        np.testing.assert_allclose(a, b, rtol=0, atol=1e-10 * np.abs(b).max())
+    # inside jit
+    x = jnp.linspace(0.0, 1.0, 50)
+    y = jax.jit(lambda x: population_vmap(lambda v, k: jnp.sin(k * v), x, 2.0))(x)
+    np.testing.assert_allclose(np.asarray(y), np.sin(2.0 * np.asarray(x)), rtol=1e-15)
+    # generation steps whose fitness is split compile once, run and never get worse
+    objective = build_objective(make_records(noise=False, duration=0.3))
+    for strategy in (DE.paper(population=48), PSO.paper(population=48)):
+        result = run(strategy, objective.fitness, len(objective.names), seed=0, generations=3)
+        assert result.history_best[-1] <= result.history_best[0]
+    print("ok", len(y.sharding.device_set))
+    """
+)
+
+
+def test_split_over_three_devices_in_a_fresh_process():
+    """Device count from JAXFLEX_HOST_DEVICES; simulation, jit, DE and PSO runs all split."""
+    env = {**os.environ, "JAXFLEX_HOST_DEVICES": "3", "JAX_PLATFORMS": "cpu"}
+    result = subprocess.run(
+        [sys.executable, "-c", SPLIT_CHECKS], env=env, capture_output=True, text=True, timeout=300
+    )
+    assert result.returncode == 0, result.stderr[-3000:]
+    assert result.stdout.split()[-2:] == ["ok", "3"]
+
+
+def test_pytrees_blocks_and_jit():
+    def fn(candidate, shift):
+        return {"sum": candidate["a"].sum() + candidate["b"] + shift, "a2": candidate["a"] ** 2}
+
+    size = 2 * BLOCK + 3  # more than a block per device: runs block after block
+    population = {"a": jnp.arange(3.0 * size).reshape(size, 3), "b": jnp.arange(size) * 1.0}
+    want = jax.vmap(fn, in_axes=(0, None))(population, 0.5)
+    for got in (
+        population_vmap(fn, population, 0.5),
+        jax.jit(lambda p: population_vmap(fn, p, 0.5))(population),
+    ):
+        np.testing.assert_array_equal(np.asarray(got["sum"]), np.asarray(want["sum"]))
+        np.testing.assert_array_equal(np.asarray(got["a2"]), np.asarray(want["a2"]))
+    one = population_vmap(fn, jax.tree.map(lambda x: x[:1], population), 0.0)
+    assert one["sum"].shape == (1,)
+    with pytest.raises(ValueError, match="leading population axis"):
+        population_vmap(fn, {"a": jnp.ones(()), "b": jnp.ones(())}, 0.0)
+
+
+def test_device_count_setting_is_validated(monkeypatch):
+    monkeypatch.setenv("JAXFLEX_HOST_DEVICES", "0")
+    with pytest.raises(ValueError, match="JAXFLEX_HOST_DEVICES='0' must be an integer >= 1"):
+        default_host_devices()
+    monkeypatch.setenv("JAXFLEX_HOST_DEVICES", "two")
+    with pytest.raises(ValueError, match="JAXFLEX_HOST_DEVICES='two'"):
+        default_host_devices()
+    monkeypatch.setenv("JAXFLEX_HOST_DEVICES", "5")
+    assert default_host_devices() == 5
