@@ -27,6 +27,7 @@ import sys
 import time
 from pathlib import Path
 
+import jax
 import numpy as np
 from scipy.optimize import differential_evolution
 
@@ -176,6 +177,7 @@ def main(argv=None) -> int:
         "benchmark": "identify",
         "records": "three noisy 2 s reference records (triangular, pulse, half_sine; seed 0)",
         "objective_agreement": agreement,
+        "cpu_devices": len(jax.devices("cpu")),  # the population is split across them
         "jaxflex": runs,
         "targets": {"de_wall_time_s": TARGET_SECONDS, "speedup_vs_scipy": TARGET_SPEEDUP},
         "provenance": provenance(),
