@@ -82,15 +82,22 @@ def _mesh() -> Mesh:
     return Mesh(np.asarray(population_devices()), (AXIS,))
 
 
+def gathered_sharding() -> NamedSharding | None:
+    """The layout of :func:`gathered` arrays: on every device (None with a single device)."""
+    if len(population_devices()) == 1:
+        return None
+    return NamedSharding(_mesh(), PartitionSpec())
+
+
 def gathered(tree: T) -> T:
     """``tree`` with every array on every device (inside ``jit``: a sharding constraint).
 
     Programs that pass their outputs back in as inputs (a generation step) use it so that the
     layout of what they return matches the layout they were compiled for.
     """
-    if len(population_devices()) == 1:
+    sharding = gathered_sharding()
+    if sharding is None:
         return tree
-    sharding = NamedSharding(_mesh(), PartitionSpec())
     return jax.tree.map(lambda x: jax.lax.with_sharding_constraint(x, sharding), tree)
 
 
@@ -144,6 +151,7 @@ __all__ = [
     "configure_host_devices",
     "default_host_devices",
     "gathered",
+    "gathered_sharding",
     "population_devices",
     "population_vmap",
 ]
