@@ -29,6 +29,7 @@ test: $(VENV)/.stamp-dev lint
 
 bench: $(VENV)/.stamp-dev
 	$(PY) benchmarks/simulate.py
+	$(PY) benchmarks/profile_simulate.py
 	$(PY) benchmarks/identify.py
 	$(PY) benchmarks/design.py
 	$(PY) benchmarks/discover.py

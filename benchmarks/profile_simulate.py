@@ -1,0 +1,135 @@
+"""Profile: where one simulator time step spends its time, on one CPU device.
+
+Measures what limits the simulator's throughput (``benchmarks/simulate.py`` reports the
+throughput itself): the number of XLA kernels inside the compiled time loop, and the run time
+of a plain one-device vmap (best of 5) as the population, the number of finite elements and the
+number of friction Newton iterations change. A straight-line fit of time against population
+separates the fixed cost of a step (kernel launches) from the cost per candidate.
+Writes ``benchmarks/results/profile_simulate.json``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import re
+import sys
+import time
+from pathlib import Path
+
+os.environ.setdefault("JAXFLEX_HOST_DEVICES", "1")  # one device: the cost of one core
+
+import jax  # noqa: E402
+import jax.numpy as jnp  # noqa: E402
+import numpy as np  # noqa: E402
+
+import jaxflex  # noqa: E402, F401  (float64)
+from jaxflex._io import provenance, write_json  # noqa: E402
+from jaxflex.model import Model  # noqa: E402
+from jaxflex.signals import reference_input  # noqa: E402
+from jaxflex.testbed import Testbed  # noqa: E402
+
+simulator = sys.modules["jaxflex.simulate"]
+RESULTS = Path(__file__).parent / "results" / "profile_simulate.json"
+
+
+def compiled_batch(model: Model, population: int, torque):
+    params = model.space.from_unit(np.random.default_rng(0).uniform(size=(population, 6)))
+    run = jax.jit(jax.vmap(lambda p: simulator.simulate_core(model, p, torque, model.testbed.dt)))
+    return run, params
+
+
+def best_time(model: Model, population: int, torque, repeats: int = 5) -> float:
+    run, params = compiled_batch(model, population, torque)
+    run(params).joint_angle.block_until_ready()
+    times = []
+    for _ in range(repeats):
+        start = time.perf_counter()
+        run(params).joint_angle.block_until_ready()
+        times.append(time.perf_counter() - start)
+    return min(times)
+
+
+def kernels_per_sample(model: Model, torque) -> dict[str, int]:
+    """Operations in the body of the compiled time loop (one sample = n_substeps steps)."""
+    run, params = compiled_batch(model, 100, torque)
+    text = run.lower(params).compile().as_text()
+    loop = next(
+        line for line in text.splitlines()
+        if " while(" in line and f'"known_trip_count":{{"n":"{torque.shape[0]}"}}' in line
+    )
+    body_name = re.search(r"body=%?([\w.\-]+)", loop).group(1)
+    body = text[text.index(f"%{body_name} ") :]
+    body = body[: body.index("\n}")]
+    ops = re.findall(r"= \S+ ([a-z\-]+)\(", body)
+    counts = {op: ops.count(op) for op in sorted(set(ops))}
+    counts.pop("get-tuple-element", None)
+    counts.pop("parameter", None)
+    counts.pop("tuple", None)
+    return counts
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--out", default=str(RESULTS))
+    args = parser.parse_args()
+    torque = jnp.asarray(reference_input("pulse")[1])
+    samples = torque.shape[0]
+    model = Model()
+
+    kernels = kernels_per_sample(model, torque)
+    launched = sum(n for op, n in kernels.items() if op in ("fusion", "copy", "custom-call"))
+    print(f"kernels per sample ({model.n_substeps} sub-steps): {launched}  {kernels}")
+
+    populations = [1, 10, 25, 50, 100]
+    per_population = [best_time(model, p, torque) for p in populations]
+    slope, intercept = np.polyfit(populations, per_population, 1)
+    for p, t in zip(populations, per_population, strict=True):
+        print(f"population {p:4d}: {t * 1e3:7.1f} ms ({p / t:6.0f} sims/s)")
+    print(
+        f"fit: {intercept * 1e3:.1f} ms fixed + {slope * 1e3:.3f} ms per candidate; per sample "
+        f"{intercept / samples * 1e6:.2f} us fixed = {intercept / samples / launched * 1e9:.0f} "
+        f"ns per kernel"
+    )
+
+    per_mesh = {}
+    for n_el in (2, 5, 10):
+        per_mesh[n_el] = best_time(Model(testbed=Testbed(n_elements=n_el)), 100, torque)
+        print(f"n_el {n_el:2d} ({2 * n_el} modes), population 100: {per_mesh[n_el] * 1e3:.1f} ms")
+
+    per_newton = {}
+    default = simulator.NEWTON_ITERATIONS
+    try:
+        for n in (default, default // 2):
+            simulator.NEWTON_ITERATIONS = n
+            per_newton[n] = best_time(model, 100, torque)
+            print(f"{n} Newton iterations, population 100: {per_newton[n] * 1e3:.1f} ms")
+    finally:
+        simulator.NEWTON_ITERATIONS = default
+
+    write_json(
+        args.out,
+        {
+            "benchmark": "profile_simulate",
+            "settings": {
+                "input": "pulse", "samples": samples, "n_substeps": model.n_substeps,
+                "device": "one CPU device (JAXFLEX_HOST_DEVICES=1)", "repeats": 5,
+            },
+            "kernels_per_sample": kernels,
+            "kernel_launches_per_sample": launched,
+            "time_vs_population_s": dict(zip(map(str, populations), per_population, strict=True)),
+            "linear_fit": {"fixed_s": intercept, "per_candidate_s": slope},
+            "time_vs_elements_at_population_100_s": {str(k): v for k, v in per_mesh.items()},
+            "time_vs_newton_iterations_at_population_100_s": {
+                str(k): v for k, v in per_newton.items()
+            },
+            "load_average_1_5_15min_at_end": list(os.getloadavg()),
+            **provenance(),
+        },
+        overwrite=True,
+    )
+    print(f"wrote {args.out}")
+
+
+if __name__ == "__main__":
+    main()
