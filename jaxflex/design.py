@@ -51,7 +51,7 @@ from jaxflex.data import Record
 from jaxflex.model import Model
 from jaxflex.parameters import Params
 from jaxflex.signals import REFERENCE_AMPLITUDES, reference_input, time_grid
-from jaxflex.simulate import OUTPUT_NAMES, Outputs, simulate, simulate_core
+from jaxflex.simulate import OUTPUT_NAMES, Outputs, check_torque, simulate, simulate_core
 from jaxflex.synthetic import ACCELEROMETER_SIGMA, ENCODER_STEP
 
 DEFAULT_NOISE: dict[str, float] = {
@@ -136,17 +136,6 @@ def _nominal(model: Model, params: Mapping[str, ArrayLike] | None) -> Params:
     return values
 
 
-def _check_torque(torque: ArrayLike) -> np.ndarray:
-    torque = np.asarray(torque, dtype=np.float64)
-    if torque.ndim != 1 or torque.shape[0] < 2:
-        raise ValueError(f"torque must be a 1-D array of >= 2 samples, got shape {torque.shape}")
-    if not np.all(np.isfinite(torque)):
-        raise ValueError(
-            f"torque is not finite at sample {int(np.flatnonzero(~np.isfinite(torque))[0])}"
-        )
-    return torque
-
-
 def fisher_information(
     model: Model | None,
     params: Mapping[str, ArrayLike] | None,
@@ -165,7 +154,7 @@ def fisher_information(
     names = _check_names(model, values, names)
     channels, sigmas = _check_noise(noise)
     dt = model.testbed.dt if dt is None else float(dt)
-    torque = _check_torque(torque)
+    torque = check_torque(torque)
     return np.asarray(
         _fisher_jit(model, values, jnp.asarray(torque), jnp.asarray(sigmas), names, dt, channels)
     )
@@ -214,7 +203,7 @@ def predicted_intervals(
 
 def response_limits(model: Model, params: Mapping[str, ArrayLike], torque, dt) -> dict[str, float]:
     """The four constrained quantities of an input, by simulation at ``params``."""
-    torque = _check_torque(torque)
+    torque = check_torque(torque)
     out = simulate(model, params, torque, dt)
     return {
         "peak_torque": float(np.max(np.abs(torque))),

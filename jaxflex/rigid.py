@@ -46,7 +46,7 @@ from jaxtyping import Array, ArrayLike, Float
 from jaxflex.data import Dataset, Record
 from jaxflex.parameters import ParameterSpace
 from jaxflex.preprocess import differentiate, lowpass
-from jaxflex.simulate import Outputs
+from jaxflex.simulate import Outputs, check_dt, check_torque
 from jaxflex.testbed import Testbed
 
 DEFAULT_CUTOFF_HZ = 4.0
@@ -357,11 +357,8 @@ def rigid_simulate(
     instants (right-hand limit of the torque): the tip acceleration of a rigid link is ``L·θ''``
     (``length`` defaults to the reference testbed's); deflection and strain are zero.
     """
-    torque = np.asarray(torque, dtype=np.float64)
-    if torque.ndim != 1 or torque.shape[0] < 2 or not np.all(np.isfinite(torque)):
-        raise ValueError(f"torque must be a finite 1-D array of >= 2 samples, got {torque.shape}")
-    if not (isinstance(dt, (int, float)) and math.isfinite(dt) and dt > 0):
-        raise ValueError(f"dt must be a positive number of seconds, got {dt!r}")
+    torque = check_torque(torque)
+    dt = check_dt(dt)
     if not (isinstance(n_substeps, int) and n_substeps >= 1):
         raise ValueError(f"n_substeps must be an int >= 1, got {n_substeps!r}")
     if not estimate.J_tot > 0:

@@ -316,10 +316,15 @@ def _simulate_batch_jit(model: Model, params: Params, torque: Array, dt: float) 
     return population_vmap(lambda p, t: simulate_core(model, p, t, dt), params, torque)
 
 
-def _check_inputs(model: Model, params: Mapping[str, ArrayLike], torque, dt, batched: bool):
-    dt = model.testbed.dt if dt is None else dt
+def check_dt(dt) -> float:
+    """``dt`` as a float, or a ValueError unless it is a positive finite number of seconds."""
     if not (isinstance(dt, (int, float)) and np.isfinite(dt) and dt > 0):
         raise ValueError(f"dt must be a positive number of seconds, got {dt!r}")
+    return float(dt)
+
+
+def check_torque(torque: ArrayLike) -> Float[np.ndarray, " n"]:
+    """``torque`` as float64, or a ValueError naming the shape or the first non-finite sample."""
     torque = np.asarray(torque, dtype=np.float64)
     if torque.ndim != 1 or torque.shape[0] < 2:
         raise ValueError(
@@ -328,6 +333,12 @@ def _check_inputs(model: Model, params: Mapping[str, ArrayLike], torque, dt, bat
     if not np.all(np.isfinite(torque)):
         bad = int(np.flatnonzero(~np.isfinite(torque))[0])
         raise ValueError(f"torque is not finite at sample {bad}")
+    return torque
+
+
+def _check_inputs(model: Model, params: Mapping[str, ArrayLike], torque, dt, batched: bool):
+    dt = check_dt(model.testbed.dt if dt is None else dt)
+    torque = check_torque(torque)
     model.space.validate(params)
     values = {k: jnp.asarray(v, dtype=jnp.float64) for k, v in params.items()}
     shapes = {k: v.shape for k, v in values.items()}

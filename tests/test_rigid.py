@@ -169,6 +169,13 @@ def test_input_checks(paper_records):
         estimate_rigid(record, weights=w, offset=False)
     with pytest.raises(ValueError, match="no records"):
         estimate_rigid([])
+    estimate = estimate_rigid(record, offset=False)
+    torque = np.array(record.torque)
+    torque[7] = np.nan
+    with pytest.raises(ValueError, match="torque is not finite at sample 7"):
+        rigid_simulate(estimate, torque, record.dt)
+    with pytest.raises(ValueError, match="dt must be a positive number of seconds"):
+        rigid_simulate(estimate, record.torque, 0.0)
 
 
 def test_rigid_simulate_matches_closed_form():
