@@ -120,22 +120,38 @@ def make_records(
     records = []
     for i, name in enumerate(inputs):
         time, torque = reference_input(name, amplitudes.get(name), duration=duration, dt=dt)
-        out = simulate(model, values, torque, dt)
-        record = Record(
-            time=time,
-            torque=torque,
-            joint_angle=np.asarray(out.joint_angle),
-            tip_acceleration=np.asarray(out.tip_acceleration),
-            extras={e: np.asarray(out.channel(e)) for e in extras},
-            name=name,
-            metadata={
-                "synthetic": "jaxflex.synthetic.make_records",
-                "parameters": described,
-                "effects": ", ".join(model.effect_names) or "none",
-            },
-        )
+        metadata = {
+            "synthetic": "jaxflex.synthetic.make_records",
+            "parameters": described,
+            "effects": ", ".join(model.effect_names) or "none",
+        }
+        record = simulated_record(model, values, name, time, torque, dt, extras, metadata)
         records.append(add_measurement_noise(record, (seed, i)) if noise else record)
     return Dataset(records)
+
+
+def simulated_record(
+    model: Model,
+    params: Mapping[str, ArrayLike],
+    name: str,
+    time: ArrayLike,
+    torque: ArrayLike,
+    dt: float,
+    extras: Sequence[str] = (),
+    metadata: Mapping[str, str] | None = None,
+) -> Record:
+    """A noise-free :class:`Record` of ``model`` at ``params`` driven by ``torque``; ``extras``
+    names further simulated outputs stored as extra columns."""
+    out = simulate(model, params, torque, dt)
+    return Record(
+        time=time,
+        torque=torque,
+        joint_angle=np.asarray(out.joint_angle),
+        tip_acceleration=np.asarray(out.tip_acceleration),
+        extras={e: np.asarray(out.channel(e)) for e in extras},
+        name=name,
+        metadata=dict(metadata or {}),
+    )
 
 
 def true_parameters(
@@ -162,5 +178,6 @@ __all__ = [
     "add_measurement_noise",
     "make_records",
     "quantise_angle",
+    "simulated_record",
     "true_parameters",
 ]

@@ -88,10 +88,9 @@ def build_model_and_params(assignments: dict[str, float], effects: str, dt: floa
 
 def run(args: argparse.Namespace) -> int:
     from jaxflex._io import check_writable
-    from jaxflex.data import Record, save_record
+    from jaxflex.data import save_record
     from jaxflex.signals import reference_input
-    from jaxflex.simulate import simulate
-    from jaxflex.synthetic import add_measurement_noise
+    from jaxflex.synthetic import add_measurement_noise, simulated_record
 
     for label, value in (("--dt", args.dt), ("--duration", args.duration)):
         if not (math.isfinite(value) and value > 0):
@@ -105,24 +104,16 @@ def run(args: argparse.Namespace) -> int:
         parse_assignments(args.set), args.effects, args.dt, args.duration
     )
     time, torque = reference_input(args.input, args.amplitude, args.duration, args.dt)
-    out = simulate(model, params, torque, args.dt)
-    record = Record(
-        time=time,
-        torque=torque,
-        joint_angle=np.asarray(out.joint_angle),
-        tip_acceleration=np.asarray(out.tip_acceleration),
-        extras={
-            "joint_velocity": np.asarray(out.joint_velocity),
-            "tip_deflection": np.asarray(out.tip_deflection),
-        },
-        name=args.input,
-        metadata={
-            "generator": "jaxflex simulate",
-            "input": args.input,
-            "parameters": ", ".join(f"{k}={v!r}" for k, v in params.items()),
-            "effects": ", ".join(model.effect_names) or "none",
-            "noise": f"testbed sensor noise, seed {args.seed}" if args.noise else "none",
-        },
+    metadata = {
+        "generator": "jaxflex simulate",
+        "input": args.input,
+        "parameters": ", ".join(f"{k}={v!r}" for k, v in params.items()),
+        "effects": ", ".join(model.effect_names) or "none",
+        "noise": f"testbed sensor noise, seed {args.seed}" if args.noise else "none",
+    }
+    record = simulated_record(
+        model, params, args.input, time, torque, args.dt,
+        extras=("joint_velocity", "tip_deflection"), metadata=metadata,
     )
     if args.noise:
         record = add_measurement_noise(record, args.seed)
