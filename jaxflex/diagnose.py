@@ -19,7 +19,7 @@ Each diagnostic answers one question about the residuals of a fit, per output ch
 :class:`Diagnosis` (numbers, ``summary()`` text, ``to_dict()`` for JSON). The noise model matters:
 an encoder's quantisation error is bounded but not white (constant while the arm rests), so a
 quantised channel is judged by the quantisation bound and only white-noise channels by the
-Ljung–Box test. Everything is NumPy float64 except the χ² tail, ``gammaincc`` from JAX.
+Ljung–Box test. Everything is NumPy float64; the χ² tail and peak finding are SciPy's.
 """
 
 from __future__ import annotations
@@ -29,9 +29,10 @@ from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
-import jax.scipy.special as jsp
 import numpy as np
 from numpy.typing import ArrayLike
+from scipy.signal import find_peaks
+from scipy.stats import chi2
 
 from jaxflex.data import OUTPUT_COLUMNS, Record
 from jaxflex.preprocess import differentiate
@@ -48,12 +49,12 @@ QUANTISED_EXCESS_LIMIT = 0.25
 
 
 def chi2_sf(x: float, dof: float) -> float:
-    """Survival function ``P(χ²_dof > x)`` = ``Q(dof/2, x/2)`` (regularised upper gamma)."""
+    """Survival function ``P(χ²_dof > x)`` (``scipy.stats.chi2.sf``)."""
     if dof <= 0:
         raise ValueError(f"chi-square degrees of freedom must be positive, got {dof!r}")
     if not x > 0:
         return 1.0
-    return float(jsp.gammaincc(0.5 * dof, 0.5 * x))
+    return float(chi2.sf(x, dof))
 
 
 # --- noise levels --------------------------------------------------------------------------------
@@ -378,36 +379,25 @@ def _pooled_frf(torques, outputs, dt: float, pad: int):
 
 
 def _spectral_peaks(freqs, power, f_lo, f_hi, max_peaks, prominence=0.3, depth=2.0):
-    """Local maxima of ``power`` in ``[f_lo, f_hi]`` refined by a parabola in log power.
+    """Peaks of ``power`` in ``[f_lo, f_hi]`` (``scipy.signal.find_peaks`` on log power), each
+    refined by a parabola through its bin and the two neighbours.
 
-    A peak must stand ``prominence`` decades above the lowest point between it and any higher
-    peak, and within ``depth`` decades of the highest, which discards the ripples and side
-    lobes of a finite record.
+    A peak must stand ``prominence`` decades above the higher of its two bases (SciPy's
+    topographic prominence) and within ``depth`` decades of the highest point, which discards
+    the ripples and side lobes of a finite record. The ``max_peaks`` highest are returned by
+    frequency.
     """
     band = np.flatnonzero((freqs >= f_lo) & (freqs <= f_hi))
     if band.size < 3:
         return []
     logp = np.log10(np.maximum(power[band], 1e-300))
-    top = logp.max()
-    idx = [i for i in range(1, band.size - 1)
-           if logp[i] >= logp[i - 1] and logp[i] > logp[i + 1] and logp[i] >= top - depth]
-    peaks = []
-    for i in idx:
-        left = logp[: i + 1][::-1]
-        right = logp[i:]
-        higher_left = np.flatnonzero(left > logp[i])
-        higher_right = np.flatnonzero(right > logp[i])
-        base_l = left[: higher_left[0]].min() if higher_left.size else left.min()
-        base_r = right[: higher_right[0]].min() if higher_right.size else right.min()
-        if logp[i] - max(base_l, base_r) < prominence:
-            continue
-        a, b, c = logp[i - 1], logp[i], logp[i + 1]
-        denom = a - 2 * b + c
-        offset = 0.5 * (a - c) / denom if denom != 0 else 0.0
-        df = freqs[band[1]] - freqs[band[0]]
-        peaks.append((float(freqs[band[i]] + offset * df), float(logp[i])))
-    peaks.sort(key=lambda p: -p[1])
-    return sorted(p[0] for p in peaks[:max_peaks])
+    idx, props = find_peaks(logp, height=logp.max() - depth, prominence=prominence)
+    highest = idx[np.argsort(-props["peak_heights"], kind="stable")[:max_peaks]]
+    a, b, c = logp[highest - 1], logp[highest], logp[highest + 1]
+    denom = a - 2 * b + c
+    offset = np.where(denom != 0, 0.5 * (a - c) / np.where(denom != 0, denom, 1.0), 0.0)
+    df = freqs[band[1]] - freqs[band[0]]
+    return sorted(float(f) for f in freqs[band[highest]] + offset * df)
 
 
 def frf_error(

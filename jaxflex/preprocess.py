@@ -2,9 +2,8 @@
 
 As in the dVRK identification workflow, filtering is zero-phase (forward-backward) so that a
 filtered signal is not delayed relative to the torque; a delay would be mistaken for dynamics.
-Everything is NumPy float64 (SciPy is not a dependency): the Butterworth design and ``filtfilt``
-below follow ``scipy.signal.butter`` and ``scipy.signal.filtfilt`` (odd extension, steady-state
-initial conditions) and agree with them to round-off.
+The filters are SciPy's (``scipy.signal.butter`` as second-order sections, ``sosfiltfilt``);
+what this module adds is the choice of padding, record bookkeeping and argument checks.
 """
 
 from __future__ import annotations
@@ -15,20 +14,21 @@ import warnings
 from collections.abc import Sequence
 
 import numpy as np
+from jaxtyping import Float
 from numpy.typing import ArrayLike
+from scipy import signal
 
 from jaxflex.data import Record, RecordWarning, _real, _resample_columns
 
 _MIN_QUIET_SAMPLES = 10
 
 
-def butter_lowpass(order: int, cutoff_hz: float, fs: float) -> tuple[np.ndarray, np.ndarray]:
-    """Digital Butterworth low-pass ``(b, a)``, normalised so that ``a[0] == 1``.
+def butter_lowpass(order: int, cutoff_hz: float, fs: float) -> Float[np.ndarray, "sections 6"]:
+    """Digital Butterworth low-pass as second-order sections (``scipy.signal.butter``).
 
-    Analogue prototype poles ``exp(iπ(2k + N − 1)/(2N))``, scaled to the pre-warped cutoff
-    ``2 fs tan(π f_c / fs)`` so that the digital filter has its −3 dB point exactly at
-    ``cutoff_hz``, then mapped by the bilinear transform (zeros at z = −1). Above order ~8 with a
-    cutoff far below ``fs/2`` the polynomial form loses accuracy; keep orders modest.
+    The −3 dB point lies exactly at ``cutoff_hz`` (bilinear transform with pre-warping).
+    Second-order sections stay accurate at high orders and low cutoffs, where the polynomial
+    ``(b, a)`` form loses digits; filter with ``scipy.signal.sosfiltfilt`` or :func:`lowpass`.
     """
     order = _positive_int(order, "order")
     fs = _positive(fs, "fs")
@@ -37,48 +37,7 @@ def butter_lowpass(order: int, cutoff_hz: float, fs: float) -> tuple[np.ndarray,
         raise ValueError(
             f"cutoff_hz={cutoff_hz!r} must be below the Nyquist frequency fs/2 = {fs / 2!r} Hz"
         )
-    k = np.arange(1, order + 1)
-    warped = 2 * fs * math.tan(math.pi * cutoff_hz / fs)
-    poles = warped * np.exp(1j * np.pi * (2 * k + order - 1) / (2 * order))
-    z_poles = (2 * fs + poles) / (2 * fs - poles)
-    gain = np.real(warped**order / np.prod(2 * fs - poles))
-    b = gain * np.poly(-np.ones(order))
-    a = np.real(np.poly(z_poles))
-    return b, a
-
-
-def filtfilt(
-    b: ArrayLike, a: ArrayLike, x: ArrayLike, axis: int = -1, padlen: int | None = None
-) -> np.ndarray:
-    """Zero-phase filtering: ``b/a`` applied forwards, then backwards, along ``axis``.
-
-    Like ``scipy.signal.filtfilt`` with ``padtype='odd'``: the signal is extended at both ends
-    by ``padlen`` samples (default ``3·max(len(a), len(b))``) reflected through the end values,
-    and each pass starts from the filter's steady state for the first sample, which keeps
-    start-up transients small (with a low cutoff they outlast this short default padding:
-    :func:`lowpass` pads longer). The result has the shape of ``x``.
-    """
-    b, a = _normalised(b, a)
-    x = _finite(x, "x")
-    x = _to_last(x, axis)
-    ntaps = len(b)
-    padlen = 3 * ntaps if padlen is None else _nonnegative_int(padlen, "padlen")
-    n = x.shape[-1]
-    if n <= padlen:
-        raise ValueError(
-            f"x has {n} samples along axis {axis}; filtfilt needs more than padlen={padlen}"
-        )
-    shape = x.shape
-    x = x.reshape(-1, n)
-    if padlen:
-        head = 2 * x[:, :1] - x[:, padlen:0:-1]
-        tail = 2 * x[:, -1:] - x[:, -2 : -padlen - 2 : -1]
-        x = np.concatenate([head, x, tail], axis=1)
-    zi = _steady_state(b, a)
-    y = _lfilter(b, a, x, np.outer(zi, x[:, 0]))
-    y = _lfilter(b, a, y[:, ::-1], np.outer(zi, y[:, -1]))[:, ::-1]
-    y = y[:, padlen : y.shape[1] - padlen]
-    return np.moveaxis(y.reshape(shape), -1, axis)
+    return signal.butter(order, cutoff_hz, fs=fs, output="sos")
 
 
 def lowpass(
@@ -91,18 +50,21 @@ def lowpass(
 ) -> np.ndarray:
     """Zero-phase Butterworth low-pass of ``x`` sampled at ``fs`` (amplitude response squared).
 
-    Unlike :func:`filtfilt`'s SciPy default (``3·max(len(a), len(b))`` samples, a few ms), the
-    default padding here lasts until the filter's slowest mode has decayed by e^-10, capped by
-    the signal length: with a low cutoff the short default leaves start-up transients that
-    reach well into the record (tenths of a second at 5 Hz).
+    ``scipy.signal.sosfiltfilt`` with odd extension. Unlike its default padding (a few samples
+    per section), the default here lasts until the filter's slowest mode has decayed by e^-10,
+    capped by the signal length: with a low cutoff the short default leaves start-up transients
+    that reach well into the record (tenths of a second at 5 Hz).
     """
-    b, a = butter_lowpass(order, cutoff_hz, fs)
-    x = _finite(x, "x")
+    sos = butter_lowpass(order, cutoff_hz, fs)
+    x = _to_last(_finite(x, "x"), axis)
+    n = x.shape[-1]
     if padlen is None:
-        n = _to_last(x, axis).shape[-1]
         decay_rate = 2 * math.pi * cutoff_hz * math.sin(math.pi / (2 * order))  # slowest pole
         padlen = min(n - 1, math.ceil(10 * fs / decay_rate))
-    return filtfilt(b, a, x, axis=axis, padlen=padlen)
+    elif not _nonnegative_int(padlen, "padlen") < n:
+        raise ValueError(f"x has {n} samples along axis {axis}; lowpass needs more than {padlen=}")
+    y = signal.sosfiltfilt(sos, x, axis=-1, padtype="odd", padlen=padlen)
+    return np.moveaxis(y, -1, axis)
 
 
 def lowpass_record(
@@ -253,73 +215,6 @@ def remove_accelerometer_offset(
     )
 
 
-# --- IIR filtering ------------------------------------------------------------------------------
-
-
-def _normalised(b: ArrayLike, a: ArrayLike) -> tuple[np.ndarray, np.ndarray]:
-    """Coefficients as float64 of equal length with ``a[0] == 1``."""
-    b, a = _finite(b, "b"), _finite(a, "a")
-    for name, c in (("b", b), ("a", a)):
-        if c.ndim != 1 or c.size == 0:
-            raise ValueError(f"{name} must be a non-empty 1-D array of coefficients")
-    if a[0] == 0:
-        raise ValueError("a[0] must be non-zero")
-    ntaps = max(a.size, b.size)
-    b = np.pad(b, (0, ntaps - b.size)) / a[0]
-    a = np.pad(a, (0, ntaps - a.size)) / a[0]
-    return b, a
-
-
-def _state_space(b: np.ndarray, a: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """(A, B) of the transposed direct form II: ``s' = A s + B x``, ``y = s[0] + b[0] x``.
-
-    This is the state convention of ``scipy.signal.lfilter`` (``A`` is the transposed
-    companion matrix of ``a``), so its initial conditions are interchangeable with SciPy's.
-    """
-    n = len(a) - 1
-    A = np.zeros((n, n))
-    A[:, 0] = -a[1:]
-    A[np.arange(n - 1), np.arange(1, n)] = 1.0
-    return A, b[1:] - a[1:] * b[0]
-
-
-def _steady_state(b: np.ndarray, a: np.ndarray) -> np.ndarray:
-    """State for a unit step input at rest: solves ``(I − A) s = B`` (``lfilter_zi``)."""
-    A, B = _state_space(b, a)
-    if A.size == 0:
-        return np.zeros(0)
-    try:
-        return np.linalg.solve(np.eye(len(B)) - A, B)
-    except np.linalg.LinAlgError:
-        raise ValueError("the filter has a pole at z = 1 (no steady state)") from None
-
-
-def _lfilter(b: np.ndarray, a: np.ndarray, x: np.ndarray, state: np.ndarray) -> np.ndarray:
-    """Filter each row of ``x`` (lanes × samples) from ``state`` (order × lanes).
-
-    The transposed direct form II recursion, with the operations in ``scipy.signal.lfilter``'s
-    order so results agree to the last bit. A plain float loop per lane beats vectorised NumPy
-    here (a few µs per sample); block-recursive matrix forms were tried and lose accuracy badly
-    for low cutoffs, because powers of the companion matrix grow by many orders of magnitude.
-    """
-    b0, bs, as_ = float(b[0]), b[1:].tolist(), a[1:].tolist()
-    order = len(bs)
-    if order == 0:
-        return b0 * x
-    y = np.empty_like(x)
-    for lane, row in enumerate(x):
-        z = state[:, lane].tolist()
-        out = []
-        for xi in row.tolist():
-            yi = b0 * xi + z[0]
-            for k in range(order - 1):
-                z[k] = z[k + 1] + bs[k] * xi - as_[k] * yi
-            z[order - 1] = bs[order - 1] * xi - as_[order - 1] * yi
-            out.append(yi)
-        y[lane] = out
-    return y
-
-
 # --- argument checks ----------------------------------------------------------------------------
 
 
@@ -385,7 +280,6 @@ def _window(window: object) -> tuple[float, float]:
 __all__ = [
     "butter_lowpass",
     "differentiate",
-    "filtfilt",
     "joint_velocity_acceleration",
     "lowpass",
     "lowpass_record",

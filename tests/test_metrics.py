@@ -107,7 +107,7 @@ def test_h1_validation():
     with pytest.raises(ValueError, match="nperseg"):
         h1_frf(x, x, FS, nperseg=1000)
     with pytest.raises(ValueError, match="window"):
-        h1_frf(x, x, FS, nperseg=50, window="hamming")
+        h1_frf(x, x, FS, nperseg=50, window="no-such-window")
     with pytest.raises(ValueError, match="overlap"):
         h1_frf(x, x, FS, nperseg=50, overlap=1.0)
     with pytest.raises(ValueError, match="fs"):
