@@ -1,20 +1,35 @@
-"""A minimal progress bar for long loops (generations, seeds), written to stderr."""
+"""Progress of long loops (generations, seeds, design iterations) through ``tqdm.auto``.
+
+In Jupyter the bar is a widget, in a terminal a text bar on stderr. It is off unless the caller
+asks for it (``progress=True`` in the public functions), and ``JAXFLEX_PROGRESS=0`` in the
+environment turns every bar off, which keeps CI logs and test output quiet.
+"""
 
 from __future__ import annotations
 
-import sys
-import time
+import os
 from collections.abc import Iterable, Iterator
-from typing import TypeVar
+from typing import Generic, TypeVar
+
+from tqdm.auto import tqdm
 
 T = TypeVar("T")
 
+ENVIRONMENT_SWITCH = "JAXFLEX_PROGRESS"
+"""Environment variable: ``0`` (or ``false``, ``no``, ``off``) turns all progress bars off."""
 
-class Progress:
-    """Wrap an iterable and redraw one status line per item: ``label  37/100 [####  ] 2.1s  msg``.
 
-    Silent when ``enabled`` is false or stderr is not a terminal and ``force`` is not set, so
-    tests and notebooks stay quiet; call :meth:`set_message` to show e.g. the best objective.
+def progress_allowed() -> bool:
+    """False when ``JAXFLEX_PROGRESS`` says off (``0``, ``false``, ``no``, ``off``)."""
+    value = os.environ.get(ENVIRONMENT_SWITCH, "1").strip().lower()
+    return value not in {"0", "false", "no", "off"}
+
+
+class Progress(Generic[T]):
+    """Wrap an iterable with a ``tqdm.auto`` bar labelled ``label``.
+
+    ``enabled=False`` (or ``JAXFLEX_PROGRESS=0``) makes it a plain pass-through. Call
+    :meth:`set_message` after each item to show e.g. the best cost so far as the bar's postfix.
     """
 
     def __init__(
@@ -24,44 +39,26 @@ class Progress:
         total: int | None = None,
         label: str = "",
         enabled: bool = True,
-        force: bool = False,
-        width: int = 24,
     ) -> None:
-        self._iterable = iterable
-        self._total = total if total is not None else _length(iterable)
-        self._label = label
-        self._enabled = enabled and (force or sys.stderr.isatty())
-        self._width = width
-        self._message = ""
+        self._bar = tqdm(
+            iterable,
+            total=total,
+            desc=label or None,
+            disable=not (enabled and progress_allowed()),
+            dynamic_ncols=True,
+        )
+
+    @property
+    def enabled(self) -> bool:
+        return not self._bar.disable
 
     def set_message(self, message: str) -> None:
-        self._message = message
+        """Show ``message`` after the bar (refreshed with the bar's own rate limit)."""
+        if self.enabled:
+            self._bar.set_postfix_str(message, refresh=False)
 
     def __iter__(self) -> Iterator[T]:
-        start = time.perf_counter()
-        count = 0
-        for item in self._iterable:
-            yield item
-            count += 1
-            if self._enabled:
-                self._draw(count, time.perf_counter() - start)
-        if self._enabled:
-            sys.stderr.write("\n")
-            sys.stderr.flush()
-
-    def _draw(self, count: int, elapsed: float) -> None:
-        if self._total:
-            filled = int(self._width * count / self._total)
-            bar = "#" * filled + " " * (self._width - filled)
-            where = f"{count}/{self._total} [{bar}]"
-        else:
-            where = f"{count}"
-        sys.stderr.write(f"\r{self._label} {where} {elapsed:6.1f}s {self._message}\x1b[K")
-        sys.stderr.flush()
-
-
-def _length(iterable: Iterable) -> int | None:
-    try:
-        return len(iterable)  # type: ignore[arg-type]
-    except TypeError:
-        return None
+        try:
+            yield from self._bar
+        finally:
+            self._bar.close()
