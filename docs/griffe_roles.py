@@ -1,0 +1,73 @@
+"""Griffe extension: the docstrings' reST roles (``:func:`x```) as Markdown for mkdocstrings.
+
+jaxflex's docstrings name other objects with Sphinx roles, which Markdown would show verbatim.
+A role whose target is a public jaxflex object becomes a cross-reference to its entry in the
+API reference (resolved from the docstring's own scope, as Sphinx would); any other target
+(another library's object, a private helper) becomes inline code.
+"""
+
+from __future__ import annotations
+
+import re
+
+import griffe
+
+ROLE = re.compile(r":(?:func|class|meth|mod|data|attr|obj|exc):`~?([^`]+)`")
+
+
+class RestRoles(griffe.Extension):
+    """Rewrite the roles of every docstring in the package once it is loaded."""
+
+    def on_package(self, *, pkg: griffe.Module, **kwargs: object) -> None:
+        for obj in _walk(pkg):
+            if obj.docstring is not None:
+                obj.docstring.value = ROLE.sub(
+                    lambda m, obj=obj: _reference(obj, pkg, m.group(1)), obj.docstring.value
+                )
+
+
+def _walk(obj: griffe.Object):
+    yield obj
+    for member in obj.members.values():
+        if not member.is_alias:
+            yield from _walk(member)
+
+
+def _reference(obj: griffe.Object, pkg: griffe.Module, target: str) -> str:
+    path = _public_path(obj, pkg, target)
+    return f"[`{target}`][{path}]" if path else f"`{target}`"
+
+
+def _public_path(obj: griffe.Object, pkg: griffe.Module, target: str) -> str | None:
+    """The canonical path of ``target`` as seen from ``obj`` if it is public jaxflex API."""
+    head, _, rest = target.partition(".")
+    if head == pkg.name:
+        candidates = [target]
+    else:
+        candidates = []
+        for scope in (obj, obj.parent, obj.module):
+            if scope is None:
+                continue
+            try:
+                candidates.append(scope.resolve(head) + (f".{rest}" if rest else ""))
+            except (griffe.NameResolutionError, AttributeError, KeyError):
+                continue
+    for path in candidates:
+        found = _lookup(pkg, path)
+        if found is not None:
+            return found
+    return None
+
+
+def _lookup(pkg: griffe.Module, path: str) -> str | None:
+    if not path.startswith(pkg.name + "."):
+        return None
+    try:
+        found = pkg[path[len(pkg.name) + 1 :]]
+        if found.is_alias:
+            found = found.final_target
+    except (KeyError, griffe.AliasResolutionError, griffe.CyclicAliasError):
+        return None
+    if any(part.startswith("_") for part in found.path.split(".")):
+        return None
+    return found.path
