@@ -1,8 +1,9 @@
 """Progress of long loops (generations, seeds, design iterations) through ``tqdm.auto``.
 
-In Jupyter the bar is a widget, in a terminal a text bar on stderr. It is off unless the caller
-asks for it (``progress=True`` in the public functions), and ``JAXFLEX_PROGRESS=0`` in the
-environment turns every bar off, which keeps CI logs and test output quiet.
+In Jupyter the bar is a widget (a text bar if ipywidgets is missing), in a terminal a text bar
+on stderr. It is off unless the caller asks for it (``progress=True`` in the public functions),
+and ``JAXFLEX_PROGRESS=0`` in the environment turns every bar off, which keeps CI logs and test
+output quiet.
 """
 
 from __future__ import annotations
@@ -11,6 +12,7 @@ import os
 from collections.abc import Iterable, Iterator
 from typing import Generic, TypeVar
 
+from tqdm import std
 from tqdm.auto import tqdm
 
 T = TypeVar("T")
@@ -40,13 +42,16 @@ class Progress(Generic[T]):
         label: str = "",
         enabled: bool = True,
     ) -> None:
-        self._bar = tqdm(
-            iterable,
-            total=total,
-            desc=label or None,
-            disable=not (enabled and progress_allowed()),
-            dynamic_ncols=True,
-        )
+        options = {
+            "total": total,
+            "desc": label or None,
+            "disable": not (enabled and progress_allowed()),
+            "dynamic_ncols": True,
+        }
+        try:
+            self._bar = tqdm(iterable, **options)
+        except ImportError:  # Jupyter without ipywidgets: no widget, a text bar instead
+            self._bar = std.tqdm(iterable, **options)
 
     @property
     def enabled(self) -> bool:

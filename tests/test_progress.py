@@ -5,6 +5,7 @@ from __future__ import annotations
 import jax.numpy as jnp
 import pytest
 
+from jaxflex import _progress as progress
 from jaxflex._progress import ENVIRONMENT_SWITCH, Progress
 from jaxflex.evolve import DE, run
 
@@ -51,6 +52,15 @@ def test_bar_is_closed_when_the_loop_breaks(progress_on, capsys):
             break
     err = capsys.readouterr().err
     assert "2/100" in err and err.endswith("\n")  # closed: the line is finished
+
+
+def test_text_bar_when_the_widget_cannot_be_drawn(progress_on, monkeypatch, capsys):
+    def no_widget(*args, **kwargs):
+        raise ImportError("IProgress not found. Please update jupyter and ipywidgets.")
+
+    monkeypatch.setattr(progress, "tqdm", no_widget)
+    assert list(Progress(range(3), label="search")) == [0, 1, 2]
+    assert "3/3" in capsys.readouterr().err
 
 
 def test_evolution_shows_the_best_cost(progress_on, capsys):
