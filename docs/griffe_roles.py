@@ -1,9 +1,10 @@
 """Griffe extension: the docstrings' reST roles (``:func:`x```) as Markdown for mkdocstrings.
 
 jaxflex's docstrings name other objects with Sphinx roles, which Markdown would show verbatim.
-A role whose target is a public jaxflex object becomes a cross-reference to its entry in the
-API reference (resolved from the docstring's own scope, as Sphinx would); any other target
-(another library's object, a private helper) becomes inline code.
+A role whose target is a jaxflex object the API reference renders becomes a cross-reference to
+its entry (resolved from the docstring's own scope, as Sphinx would); any other target
+(another library's object, a private helper, a name outside its module's ``__all__``) becomes
+inline code.
 """
 
 from __future__ import annotations
@@ -68,6 +69,20 @@ def _lookup(pkg: griffe.Module, path: str) -> str | None:
             found = found.final_target
     except (KeyError, griffe.AliasResolutionError, griffe.CyclicAliasError):
         return None
-    if any(part.startswith("_") for part in found.path.split(".")):
+    if any(part.startswith("_") for part in found.path.split(".")) or not _exported(found):
         return None
     return found.path
+
+
+def _exported(obj: griffe.Object) -> bool:
+    """Whether the API reference renders ``obj``: every module on its path that declares
+    ``__all__`` lists the next name (mkdocstrings' ``filters: public``)."""
+    child, parent = obj, obj.parent
+    while parent is not None:
+        exports = parent.exports if parent.is_module else None
+        if exports is not None:
+            names = {e if isinstance(e, str) else getattr(e, "name", str(e)) for e in exports}
+            if child.name not in names:
+                return False
+        child, parent = parent, parent.parent
+    return True
