@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 import scipy.signal as ss
 
-from jaxflex.metrics import frf_nrmse, h1_frf, nrmse, relative_error
+from jaxflex.metrics import frf_nrmse, h1_frf, nrmse, relative_error, spectral_window
 
 FS = 1000.0
 
@@ -130,3 +130,15 @@ def test_frf_nrmse_identical_and_scaled():
         frf_nrmse(f, h, h, f_min=20.0, f_max=20.1)
     with pytest.raises(ValueError, match="H_model has shape"):
         frf_nrmse(f, h, h[:-1])
+
+
+@pytest.mark.parametrize("n", [7, 64, 2001])
+def test_spectral_windows_are_periodic(n):
+    k = np.arange(n)
+    np.testing.assert_allclose(spectral_window("hann", n), 0.5 - 0.5 * np.cos(2 * np.pi * k / n),
+                               rtol=0, atol=1e-15)
+    np.testing.assert_array_equal(spectral_window("boxcar", n), np.ones(n))
+    hamming = 0.54 - 0.46 * np.cos(2 * np.pi * k / n)
+    np.testing.assert_allclose(spectral_window("hamming", n), hamming, rtol=0, atol=1e-15)
+    with pytest.raises(ValueError, match="window='hannn' is not a window"):
+        spectral_window("hannn", n)
