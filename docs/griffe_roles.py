@@ -16,11 +16,20 @@ import griffe
 ROLE = re.compile(r":(?:func|class|meth|mod|data|attr|obj|exc):`~?([^`]+)`")
 
 
+SHOWN_SPECIAL = {"__call__"}
+"""Special methods the reference shows; the others (``__repr__``, ``__len__``, ...) are
+implementation detail for a reader of the API."""
+
+
 class RestRoles(griffe.Extension):
-    """Rewrite the roles of every docstring in the package once it is loaded."""
+    """Rewrite the roles of every docstring in the package once it is loaded, and hide special
+    methods from the reference."""
 
     def on_package(self, *, pkg: griffe.Module, **kwargs: object) -> None:
         for obj in _walk(pkg):
+            if obj.name.startswith("__") and obj.name.endswith("__") and obj.parent is not None:
+                if obj.parent.is_class and obj.name not in SHOWN_SPECIAL:
+                    obj.public = False
             if obj.docstring is not None:
                 obj.docstring.value = ROLE.sub(
                     lambda m, obj=obj: _reference(obj, pkg, m.group(1)), obj.docstring.value
