@@ -184,7 +184,8 @@ class ParameterSpace:
 
     def from_unit(self, u: Float[ArrayLike, "... d"]) -> Params:
         """Unit box coordinates → physical values (values outside [0, 1] extrapolate); the
-        box maps into the bounds exactly (the exponential's last ulp is clipped)."""
+        box maps into the bounds, its faces onto them exactly (the log map's last ulp is not
+        trusted)."""
         u = jnp.asarray(u, dtype=jnp.float64)
         lo, hi = jnp.asarray(self._lower), jnp.asarray(self._upper)
         log = jnp.asarray(self._log)
@@ -193,7 +194,8 @@ class ParameterSpace:
         x_lin = lo + u * (hi - lo)
         x = jnp.where(log, x_log, x_lin)
         inside = (u >= 0.0) & (u <= 1.0)
-        return self.from_vector(jnp.where(inside, jnp.clip(x, lo, hi), x))
+        x = jnp.where(inside, jnp.clip(x, lo, hi), x)
+        return self.from_vector(jnp.where(u == 0.0, lo, jnp.where(u == 1.0, hi, x)))
 
     def unit_seeds(self, params: Mapping[str, ArrayLike], what: str | None = None
                    ) -> Float[np.ndarray, "k d"]:
