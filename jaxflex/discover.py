@@ -75,7 +75,17 @@ from jaxflex._io import provenance, to_jsonable
 from jaxflex._progress import Progress
 from jaxflex.compare import DEFAULT_T_END, FRFSettings, _compare_record
 from jaxflex.data import Dataset, Record
-from jaxflex.diagnose import CHANNELS, Diagnosis, NoiseLevel, chi2_sf, diagnose, estimate_noise
+from jaxflex.diagnose import (
+    CHANNELS,
+    UNITS,
+    Diagnosis,
+    Noise,
+    NoiseLevel,
+    chi2_sf,
+    diagnose,
+    estimate_noise,
+    noise_levels,
+)
 from jaxflex.effects import Effect, get_effect, library
 from jaxflex.effects._base import Structure
 from jaxflex.model import Model
@@ -521,6 +531,11 @@ class DiscoveryReport:
         return tuple(s.added for s in self.steps if s.added)
 
     @property
+    def noise(self) -> dict[str, NoiseLevel]:
+        """The noise level each channel used (given or estimated; ``describe()`` says how)."""
+        return self.final.fit.noise
+
+    @property
     def rankings(self) -> tuple[tuple[ScoreResult, ...], ...]:
         return tuple(s.ranking for s in self.steps if s.ranking)
 
@@ -543,6 +558,9 @@ class DiscoveryReport:
                  for row in [head] + rows]
         floor = ", ".join(f"{k} {v:.3g} %" for k, v in self.noise_floor.items())
         lines.append(f"noise floor (NRMSE the measurement noise alone gives): {floor}")
+        for channel, level in self.noise.items():
+            lines.append(f"noise level {channel}: σ = {level.sigma:.4g} {UNITS[channel]} "
+                         f"({level.describe()})")
         for s in self.steps:
             if s.ranking:
                 top = ", ".join(
@@ -609,9 +627,10 @@ class _Engine:
 
     @classmethod
     def build(cls, model: Model, candidates: Sequence[Candidate], records: Dataset,
-              params: Mapping[str, float], noise: Mapping[str, NoiseLevel] | None) -> _Engine:
-        """The engine testing ``candidates`` on ``model``; noise levels default to those
-        estimated from the residuals of ``params`` (:func:`jaxflex.diagnose.estimate_noise`).
+              params: Mapping[str, float], noise: Noise | None) -> _Engine:
+        """The engine testing ``candidates`` on ``model``; the channels' noise levels are the
+        given ones, the others estimated from the residuals of ``params``
+        (:func:`jaxflex.diagnose.estimate_noise`).
 
         The universe holds every library effect (and the given candidates) whichever are
         tested, so that every call on the same model and record layout — score tests, a refit,
@@ -622,15 +641,13 @@ class _Engine:
         pool = sorted((c for c in pool if c.name not in model.effect_names),
                       key=lambda c: c.name)
         universe = _Universe.build(model, pool)
-        levels = dict(noise or {})
-        missing = [c for c in CHANNELS if c not in levels]
-        if missing:
+        levels = noise_levels(noise)
+        if any(c not in levels for c in CHANNELS):
             x = universe.vector(params)
             preds = _simulate_all(universe, x, records)
             residuals = [{c: r.channel(c) - np.asarray(p.channel(c)) for c in CHANNELS}
                          for r, p in zip(records, preds, strict=True)]
-            estimated = estimate_noise(records, residuals)
-            levels.update({c: estimated[c] for c in missing})
+            levels = estimate_noise(records, residuals, given=levels)
         for c, level in levels.items():
             if not (math.isfinite(level.sigma) and level.sigma > 0):
                 raise ValueError(f"noise level of {c} must be positive, got {level.sigma!r}; "
@@ -1020,7 +1037,7 @@ def score_tests(
     candidates: Iterable[str | Effect | Candidate] | None = None,
     *,
     alpha: float = ALPHA,
-    noise: Mapping[str, NoiseLevel] | None = None,
+    noise: Noise | None = None,
 ) -> list[ScoreResult]:
     """Score-test every candidate effect at the fit ``params`` of ``model`` (best first).
 
@@ -1051,7 +1068,7 @@ def refit(
     params: Mapping[str, ArrayLike] | Any,
     records: Dataset | Iterable[Record],
     *,
-    noise: Mapping[str, NoiseLevel] | None = None,
+    noise: Noise | None = None,
 ) -> DiscoveryFit:
     """Fit ``model`` on the discovery likelihood from ``params`` (a mapping or a fit).
 
@@ -1071,7 +1088,7 @@ def add_effect(
     records: Dataset | Iterable[Record],
     *,
     model: Model | None = None,
-    noise: Mapping[str, NoiseLevel] | None = None,
+    noise: Noise | None = None,
 ) -> DiscoveryFit:
     """Add ``effect`` to a fitted model and refit everything, warm-started.
 
@@ -1089,9 +1106,9 @@ def add_effect(
     cand = _candidate(effect)
     if cand.name in base.effect_names:
         raise ValueError(f"effect {cand.name!r} is already in the model")
-    levels = dict(getattr(fit, "noise", None) or {})
-    levels.update(noise or {})
-    engine = _Engine.build(base, (cand,), records, values, levels or None)
+    levels = dict(fit.noise) if isinstance(fit, DiscoveryFit) else {}
+    levels.update(noise_levels(noise))
+    engine = _Engine.build(base, (cand,), records, values, levels)
     x0 = engine.universe.vector(values)
     best = engine.score_tests(x0, (), 1.0)[0]
     slot, start = engine.start(x0, (), engine.candidate(cand.name), best.estimate)
@@ -1269,7 +1286,7 @@ def discover(
     *,
     initial: Mapping[str, ArrayLike] | Any = None,
     budget: int | tuple[int, int] | None = None,
-    noise: Mapping[str, NoiseLevel] | None = None,
+    noise: Noise | None = None,
     max_confirm: int = MAX_CONFIRM,
 ) -> DiscoveryReport:
     """Find the effects the model is missing, one at a time (see the module docstring).
@@ -1279,8 +1296,11 @@ def discover(
     by differential evolution and Levenberg–Marquardt (:func:`jaxflex.identify.identify`), with
     ``budget`` generations or ``(generations, population)`` (default :data:`BUDGET`,
     :data:`FAST_BUDGET` with ``JAXFLEX_FAST=1``). ``alpha`` is the family-wise level of each
-    step, Bonferroni over the candidates. ``noise`` gives the channels' noise levels (default:
-    estimated from the first fit's residuals). Returns a :class:`DiscoveryReport`.
+    step, Bonferroni over the candidates. ``noise`` gives channels' noise levels, a white σ in
+    the channel's unit or a :class:`~jaxflex.diagnose.NoiseLevel` (e.g.
+    ``{"joint_angle": 1e-4}``); the others are estimated from the first fit's residuals
+    (:func:`jaxflex.diagnose.estimate_noise`), and the report states each level and how it was
+    obtained. Returns a :class:`DiscoveryReport`.
     """
     t0 = time.perf_counter()
     records = as_dataset(records)
@@ -1377,8 +1397,7 @@ def discover(
                   "max_steps": max_steps, "max_confirm": max_confirm, "seed": seed,
                   "budget": budget if initial is None else None,
                   "initial": "given" if initial is not None else "differential evolution",
-                  "noise": {c: {"sigma": v.sigma, "kind": v.kind, "step": v.step}
-                            for c, v in engine.noise.items()},
+                  "noise": {c: v.to_dict() for c, v in engine.noise.items()},
                   "min_explained": MIN_EXPLAINED},
         wall_time=time.perf_counter() - t0,
         noise_floor={c: d.noise_floor_nrmse for c, d in steps[-1].diagnosis.channels.items()},

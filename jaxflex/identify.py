@@ -30,6 +30,7 @@ import numpy as np
 from jaxtyping import ArrayLike
 
 from jaxflex._io import provenance, to_jsonable, write_json
+from jaxflex.diagnose import Noise, noise_levels
 from jaxflex.evolve import STRATEGIES, get_strategy, run
 from jaxflex.model import Model
 from jaxflex.objective import DEFAULT_CHANNELS, Objective, Records, build_objective
@@ -296,26 +297,12 @@ def _unit_seeds(objective: Objective, init_population: Any) -> np.ndarray | None
     if isinstance(init_population, Fit):
         init_population = init_population.params
     rows = [init_population] if isinstance(init_population, Mapping) else list(init_population)
-    names = objective.names
-    space = objective.space
     units = []
     for row in rows:
         if not isinstance(row, Mapping):
             raise ValueError("init_population must be a mapping name → value(s) or a list of them")
-        missing = [n for n in names if n not in row]
-        if missing:
-            raise ValueError(f"init_population lacks parameter(s) {missing}")
-        values = {n: np.atleast_1d(np.asarray(row[n], dtype=np.float64)) for n in names}
-        for n, v in values.items():
-            spec = space[n]
-            bad = ~np.isfinite(v) | (v < spec.lower) | (v > spec.upper)
-            if np.any(bad):
-                raise ValueError(
-                    f"init_population: {n}={float(v[bad][0])!r} lies outside its search bounds "
-                    f"[{spec.lower!r}, {spec.upper!r}] {spec.unit}"
-                )
-        units.append(np.atleast_2d(np.asarray(space.to_unit(values))))
-    return np.clip(np.concatenate(units, axis=0), 0.0, 1.0)
+        units.append(objective.space.unit_seeds(row, "init_population"))
+    return np.concatenate(units, axis=0)
 
 
 def _refinement_starts(objective: Objective, evolution, count: int) -> list[dict[str, float]]:
@@ -357,6 +344,7 @@ def identify(
     strategy_options: Mapping[str, Any] | None = None,
     intervals: bool = True,
     level: float = 0.95,
+    noise: Noise | None = None,
 ) -> Fit:
     """Identify the parameters of ``model`` (default: the reference testbed) from ``records``.
 
@@ -365,7 +353,9 @@ def identify(
     The search runs ``generations`` generations from ``seed`` (same seed → same result) in the
     unit box of the free parameters; ``bounds`` narrows or widens a parameter's range
     (``{"J_h": (1e-3, 1e-2)}``), ``fixed`` holds parameters at given values, ``weights`` and
-    ``channels`` shape the objective (:func:`jaxflex.objective.build_objective`).
+    ``channels`` shape the objective (:func:`jaxflex.objective.build_objective`); ``noise``
+    (channel → σ or :class:`~jaxflex.diagnose.NoiseLevel`, every fitted channel) sets the
+    weights from the channels' noise levels instead (:func:`jaxflex.objective.noise_weights`).
     ``init_population`` seeds the search with physical points (a mapping name → value or
     values, a list of mappings, or a previous :class:`Fit`). ``refine`` polishes the result with
     Levenberg–Marquardt from the ``refine_starts`` best candidates; ``intervals`` computes the
@@ -374,7 +364,8 @@ def identify(
     t_start = time.perf_counter()
     method = _check_method(method)
     objective = build_objective(
-        records, model, weights=weights, channels=channels, fixed=fixed, bounds=bounds
+        records, model, weights=weights, channels=channels, fixed=fixed, bounds=bounds,
+        noise=noise,
     )
     overrides = dict(strategy_options or {})
     if population is not None:
@@ -460,6 +451,7 @@ def identify(
             "refine_starts": refine_starts,
             "channels": list(objective.channels),
             "weights": dict(zip(objective.channels, map(float, objective.weights), strict=True)),
+            "noise": {c: v.to_dict() for c, v in noise_levels(noise).items()},
             "bounds": {s.name: [s.lower, s.upper] for s in objective.specs},
             "log_scale": {s.name: s.log_scale for s in objective.specs},
             "seeded": 0 if seeds is None else int(seeds.shape[0]),

@@ -7,8 +7,11 @@ acceleration) with weights ``w_c`` (``W = Σ_c w_c``), the residual vector stack
 
 so the cost ``Σ e²`` is the weighted mean over records and channels of the squared normalised
 RMS error (``NRMSE²``, as a fraction): every channel counts in proportion to its weight whatever
-its unit, and every record counts the same whatever its length. The residual vector (for least
-squares) and the scalar cost (for the evolutionary search) share :meth:`Objective.residuals`.
+its unit, and every record counts the same whatever its length. Weights can instead follow the
+channels' measurement noise ``σ_c`` (:func:`noise_weights`): ``w_c = mean_r ms(y_rc)/σ_c²``, the
+signal-to-noise power: on one record ``e`` is then ``(ŷ − y)/σ_c`` up to one common factor.
+The residual vector (for least squares) and the scalar cost (for the evolutionary search)
+share :meth:`Objective.residuals`.
 
 Parameters can be evaluated from three coordinates (:mod:`jaxflex.parameters`): physical values,
 the unit box ``u`` (evolutionary search) and unconstrained reals ``z`` (refinement). Only the
@@ -30,6 +33,7 @@ import numpy as np
 from jaxtyping import Array, ArrayLike, Float, Scalar
 
 from jaxflex.data import Dataset, Record
+from jaxflex.diagnose import Noise, noise_levels
 from jaxflex.evolve._base import sanitize_fitness
 from jaxflex.model import Model
 from jaxflex.parallel import population_vmap
@@ -183,6 +187,21 @@ def _check_weights(weights: Mapping[str, float] | None, channels: Sequence[str])
     return tuple(values)
 
 
+def noise_weights(records: Records, noise: Noise,
+                  channels: Sequence[str] = DEFAULT_CHANNELS) -> dict[str, float]:
+    """Channel weights from noise levels (a white σ or a :class:`NoiseLevel` per channel):
+    ``w_c = mean_r ms(y_rc) / σ_c²``, which makes the objective's residual ``(ŷ − y)/σ_c`` up to
+    one common factor (module docstring). Every channel in ``channels`` needs a level."""
+    levels = noise_levels(noise, channels)
+    missing = [c for c in channels if c not in levels]
+    if missing:
+        raise ValueError(f"noise level missing for channel(s) {missing}: give one for every "
+                         f"fitted channel {list(channels)}")
+    dataset = as_dataset(records)
+    return {c: float(np.mean([np.mean(r.channel(c) ** 2) for r in dataset]))
+            / levels[c].sigma**2 for c in channels}
+
+
 def _free_specs(
     space: ParameterSpace,
     bounds: Mapping[str, tuple[float, float]] | None,
@@ -232,10 +251,12 @@ def build_objective(
     channels: Sequence[str] = DEFAULT_CHANNELS,
     fixed: Mapping[str, ArrayLike] | None = None,
     bounds: Mapping[str, tuple[float, float]] | None = None,
+    noise: Noise | None = None,
 ) -> Objective:
     """The objective of ``model`` (default: the reference testbed) over ``records``.
 
-    ``weights`` maps channel → weight (default 1 each); ``fixed`` maps parameter → value held
+    ``weights`` maps channel → weight (default 1 each), or ``noise`` maps channel → noise level
+    and the weights follow from it (:func:`noise_weights`); ``fixed`` maps parameter → value held
     fixed; ``bounds`` maps parameter → ``(lower, upper)`` replacing its search bounds. Channels
     of weight 0 are left out of the objective altogether. Every
     argument is validated and errors name the record, channel or parameter at fault.
@@ -250,6 +271,10 @@ def build_objective(
     for c in channels:
         if c not in OUTPUT_NAMES:
             raise ValueError(f"channel {c!r} is not a simulated output; outputs: {OUTPUT_NAMES}")
+    if noise is not None:
+        if weights is not None:
+            raise ValueError("give channel weights or noise levels, not both")
+        weights = noise_weights(dataset, noise, channels)
     weight_values = _check_weights(weights, channels)
     # a channel of weight 0 adds nothing: leave it out of the simulation and the residuals
     channels, weight_values = zip(
@@ -299,4 +324,4 @@ def build_objective(
     )
 
 
-__all__ = ["DEFAULT_CHANNELS", "Objective", "as_dataset", "build_objective"]
+__all__ = ["DEFAULT_CHANNELS", "Objective", "as_dataset", "build_objective", "noise_weights"]

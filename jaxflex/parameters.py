@@ -8,6 +8,11 @@ and printed. A :class:`ParameterSpace` fixes an order and maps between three coo
   parameters spanning decades), and
 * unconstrained reals ``z = logit(u)`` for gradient refinement, so that any ``z`` respects
   the bounds.
+
+A coordinate round trip can land one ulp past a bound (``lo·exp(log(hi/lo))`` is not ``hi``).
+Every seed and warm start enters the box through one place, :func:`into_unit_box` (via
+:meth:`ParameterSpace.unit_seeds` for physical values), which clips after the round trip and
+refuses only what lies beyond a bound by more than round-off (:data:`UNIT_SLACK`).
 """
 
 from __future__ import annotations
@@ -22,6 +27,20 @@ import numpy as np
 from jaxtyping import Array, ArrayLike, Float
 
 Params = dict[str, Array]
+
+UNIT_SLACK = 1e-9
+"""How far outside ``[0, 1]`` a unit-box coordinate may come back from a round trip through
+physical values (log maps, float32 files) and still count as on the bound."""
+
+
+def into_unit_box(u: Float[ArrayLike, "... d"], what: str = "init_population") -> np.ndarray:
+    """Unit-box coordinates clipped into ``[0, 1]``: the one way seeds and warm starts enter
+    the box. A non-finite coordinate, or one beyond the box by more than :data:`UNIT_SLACK`, is
+    an error naming ``what``."""
+    u = np.asarray(u, dtype=np.float64)
+    if not np.all(np.isfinite(u)) or np.any((u < -UNIT_SLACK) | (u > 1.0 + UNIT_SLACK)):
+        raise ValueError(f"{what} must lie in the unit box [0, 1]^d (finite values)")
+    return np.clip(u, 0.0, 1.0)
 
 
 @dataclass(frozen=True)
@@ -164,14 +183,46 @@ class ParameterSpace:
         return jnp.where(log, u_log, u_lin)
 
     def from_unit(self, u: Float[ArrayLike, "... d"]) -> Params:
-        """Unit box coordinates → physical values (values outside [0, 1] extrapolate)."""
+        """Unit box coordinates → physical values (values outside [0, 1] extrapolate); the
+        box maps into the bounds, its faces onto them exactly (the log map's last ulp is not
+        trusted)."""
         u = jnp.asarray(u, dtype=jnp.float64)
         lo, hi = jnp.asarray(self._lower), jnp.asarray(self._upper)
         log = jnp.asarray(self._log)
         safe_lo = jnp.where(log, lo, 1.0)
         x_log = safe_lo * jnp.exp(u * jnp.log(jnp.where(log, hi, 2.0) / safe_lo))
         x_lin = lo + u * (hi - lo)
-        return self.from_vector(jnp.where(log, x_log, x_lin))
+        x = jnp.where(log, x_log, x_lin)
+        inside = (u >= 0.0) & (u <= 1.0)
+        x = jnp.where(inside, jnp.clip(x, lo, hi), x)
+        return self.from_vector(jnp.where(u == 0.0, lo, jnp.where(u == 1.0, hi, x)))
+
+    def unit_seeds(self, params: Mapping[str, ArrayLike], what: str | None = None
+                   ) -> Float[np.ndarray, "k d"]:
+        """Physical starting points (a value or values per name) → unit-box rows, clipped into
+        the box (:func:`into_unit_box`).
+
+        ``what`` names given seeds (e.g. ``"init_population"``): a value beyond its bounds by more
+        than round-off is an error naming it. Without ``what`` the points are estimates (e.g. a
+        rigid-body fit): one beyond a bound starts on that bound.
+        """
+        missing = [n for n in self.names if n not in params]
+        if missing:
+            raise ValueError(f"{what or 'starting point'} lacks parameter(s) {missing}")
+        values = {n: np.atleast_1d(np.asarray(params[n], dtype=np.float64)) for n in self.names}
+        u = np.atleast_2d(np.asarray(self.to_unit(values)))
+        if what is None:
+            return np.clip(u, 0.0, 1.0)
+        for i, spec in enumerate(self.specs):
+            v = values[spec.name]
+            bad = ~np.isfinite(v) | ~np.isfinite(u[:, i]) | (u[:, i] < -UNIT_SLACK) | (
+                u[:, i] > 1.0 + UNIT_SLACK)
+            if np.any(bad):
+                raise ValueError(
+                    f"{what}: {spec.name}={float(v[bad][0])!r} lies outside its search bounds "
+                    f"[{spec.lower!r}, {spec.upper!r}] {spec.unit}"
+                )
+        return into_unit_box(u, what)
 
     # --- unit box <-> unconstrained ----------------------------------------------------------
     def to_unconstrained(self, params: Mapping[str, ArrayLike], margin: float = 1e-9) -> Array:

@@ -447,7 +447,7 @@ def warm_start(
     if not known:
         return u
     centre = space.reference() | {k: jnp.asarray(v, dtype=jnp.float64) for k, v in known.items()}
-    u0 = np.clip(np.asarray(space.to_unit(centre)), 0.0, 1.0)
+    u0 = space.unit_seeds(centre)[0]
     for name in known:
         i = space.names.index(name)
         u[:, i] = np.clip(u0[i] + spread * rng.uniform(-1.0, 1.0, int(population)), 0.0, 1.0)

@@ -19,10 +19,13 @@ from jaxflex.diagnose import (
     chi2_sf,
     cross_correlation,
     diagnose,
+    estimate_noise,
     frf_error,
     localise,
+    noise_levels,
     quantisation_step,
     residual_spectrum,
+    resolution,
     white_noise_level,
 )
 from jaxflex.modal import free_hub_modes
@@ -117,6 +120,101 @@ def test_noise_level_estimates():
     angle = ENCODER_STEP * np.round(np.cumsum(rng.uniform(0, 0.01, 500)) / ENCODER_STEP)
     assert quantisation_step(angle) == pytest.approx(ENCODER_STEP, rel=1e-9)
     assert quantisation_step(np.cumsum(rng.uniform(0, 0.01, 500))) is None
+
+
+# --- the noise model on values written as loggers write them -----------------------------------
+
+MOTION = 1.2 * np.sin(2 * np.pi * 0.7 * np.arange(3001) * DT) + 0.3 * np.arange(3001) * DT
+WRITINGS = {
+    "6 digits": lambda x: np.array([float(f"{v:.5e}") for v in x]),
+    "7 digits": lambda x: np.array([float(f"{v:.6e}") for v in x]),
+    "9 digits": lambda x: np.array([float(f"{v:.8e}") for v in x]),
+    "17 digits": lambda x: np.array([float(f"{v:.16e}") for v in x]),
+    "6 decimals": lambda x: np.array([float(f"{v:.6f}") for v in x]),
+    "float32": lambda x: x.astype(np.float32).astype(np.float64),
+    "float32 text": lambda x: np.array([float(str(np.float32(v))) for v in x]),
+}
+STEPS = {"1000": 2 * np.pi / 1000, "1024": 2 * np.pi / 1024, "2000": 2 * np.pi / 2000,
+         "4096": 2 * np.pi / 4096, "10000": 2 * np.pi / 10000, "0.1deg": np.radians(0.1)}
+
+
+def encoder(step: float, offset: float, motion=MOTION) -> np.ndarray:
+    return offset + step * np.round((motion - offset) / step)
+
+
+@pytest.mark.parametrize("writing", WRITINGS)
+@pytest.mark.parametrize("resolution_name", STEPS)
+@pytest.mark.parametrize("offset", [0.0, 0.37, 1.3], ids=["no offset", "0.37 counts", "1.3 rad"])
+def test_quantisation_step_of_written_encoder_values(writing, resolution_name, offset):
+    step = STEPS[resolution_name]
+    shift = offset * step if offset < 1 else offset
+    values = WRITINGS[writing](encoder(step, shift))
+    assert quantisation_step(values) == pytest.approx(step, rel=1e-6)
+
+
+@pytest.mark.parametrize("writing", WRITINGS)
+def test_continuous_values_lie_on_no_grid(writing):
+    rng = np.random.default_rng(3)
+    write = WRITINGS[writing]
+    assert quantisation_step(write(MOTION)) is None
+    assert quantisation_step(write(MOTION + 1e-4 * rng.standard_normal(MOTION.size))) is None
+    assert quantisation_step(write(0.05 * rng.standard_normal(MOTION.size))) is None
+
+
+def channel_record(angle: np.ndarray, acceleration: np.ndarray) -> Record:
+    t = np.arange(angle.size) * DT
+    return Record(time=t, torque=np.sin(t), joint_angle=angle, tip_acceleration=acceleration)
+
+
+def test_a_staircase_never_gets_a_vanishing_noise_level():
+    rng = np.random.default_rng(5)
+    acceleration = 0.05 * rng.standard_normal(MOTION.size)
+    step = STEPS["2000"]
+    slow = 0.2 + 0.2 * np.sin(2 * np.pi * 0.3 * np.arange(MOTION.size) * DT)  # ≤ 0.12 counts/ms
+    # an eccentric encoder disc: counts 10 % uneven, so no grid, but a staircase all the same
+    edges = np.cumsum(step * (1.0 + 0.1 * np.sin(np.arange(400))))
+    uneven = edges[np.searchsorted(edges, slow + edges[0]) - 1] - edges[0]
+    for angle, source in [(WRITINGS["9 digits"](encoder(step, 0.37 * step, slow)), "quantisation"),
+                          (WRITINGS["9 digits"](uneven), "floor")]:
+        residual = {"joint_angle": angle - slow, "tip_acceleration": acceleration}
+        assert white_noise_level(residual["joint_angle"]) < 0.1 * step / math.sqrt(12)
+        levels = estimate_noise([channel_record(angle, acceleration)], [residual])
+        level = levels["joint_angle"]
+        assert level.source == source and level.unsure == (source == "floor")
+        assert level.sigma == pytest.approx(step / math.sqrt(12), rel=0.15)
+        assert levels["tip_acceleration"].source == "estimated"
+        assert levels["tip_acceleration"].sigma == pytest.approx(0.05, rel=0.1)
+    assert levels["joint_angle"].describe().startswith("floor")
+    given = estimate_noise([channel_record(angle, acceleration)], [residual],
+                           given={"joint_angle": 1e-4})
+    assert given["joint_angle"] == NoiseLevel(1e-4) and given["joint_angle"].describe() == "given"
+
+
+def test_an_exact_fit_gets_the_resolution_of_the_written_values():
+    """A noise-free channel fitted exactly: σ is the rounding of its 6 written digits, not 0."""
+    written = WRITINGS["6 digits"](np.sin(np.arange(2000) * 0.01) + 2.0)
+    levels = estimate_noise([channel_record(written, written)],
+                            [{"joint_angle": np.zeros(2000), "tip_acceleration": np.zeros(2000)}])
+    level = levels["tip_acceleration"]
+    assert level.source == "floor" and level.sigma == pytest.approx(resolution(written))
+    # 6 significant digits of values in [1, 3]: last place 1e-5, rounding RMS 1e-5/sqrt(12)
+    assert level.sigma == pytest.approx(1e-5 / math.sqrt(12), rel=1e-6)
+
+
+def test_noise_levels_are_validated_and_described():
+    levels = noise_levels({"joint_angle": 1e-4, "tip_acceleration": NoiseLevel.quantised(0.01)})
+    assert levels["joint_angle"] == NoiseLevel(1e-4, source="given")
+    assert levels["tip_acceleration"].describe() == "given, quantisation step q=0.01"
+    assert NoiseLevel.quantised(0.002, source="quantisation").describe() == (
+        "quantisation step q=0.002")
+    with pytest.raises(ValueError, match=r"^noise given for unknown channel 'torque'"):
+        noise_levels({"torque": 1.0})
+    with pytest.raises(ValueError, match=r"^noise level of joint_angle must be positive"):
+        noise_levels({"joint_angle": 0.0})
+    with pytest.raises(ValueError, match=r"^noise level of joint_angle must be a number"):
+        noise_levels({"joint_angle": "small"})
+    with pytest.raises(ValueError, match="noise source"):
+        NoiseLevel(1.0, source="guessed")
 
 
 @pytest.fixture(scope="module")

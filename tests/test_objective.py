@@ -71,6 +71,21 @@ def test_cost_is_weighted_mean_squared_nrmse(records):
     assert angle_only.size == objective.size // 2
 
 
+def test_noise_levels_weigh_the_residual_in_units_of_the_noise(records):
+    """One record: with weights from the noise, ``e = (ŷ − y)/σ_c`` up to one common factor."""
+    sigma = {"joint_angle": 2e-3, "tip_acceleration": 0.05}
+    objective = build_objective(records[0], noise=sigma)
+    # e = s_c (ŷ − y) with s_c ∝ 1/σ_c
+    scale = dict(zip(objective.channels, np.asarray(objective.scale[0])[0], strict=True))
+    assert scale["joint_angle"] / scale["tip_acceleration"] == pytest.approx(
+        sigma["tip_acceleration"] / sigma["joint_angle"], rel=1e-12)
+    with pytest.raises(ValueError, match="^give channel weights or noise levels, not both$"):
+        build_objective(records, noise=sigma, weights={"joint_angle": 1.0})
+    with pytest.raises(ValueError, match=r"^noise level missing for channel\(s\) "
+                                         r"\['tip_acceleration'\]"):
+        build_objective(records, noise={"joint_angle": 2e-3})
+
+
 def test_population_fitness_is_the_cost_per_candidate_and_never_nan(records):
     objective = build_objective(records)
     space = objective.space

@@ -26,6 +26,7 @@ from jaxtyping import Array, ArrayLike, Float, Int, PRNGKeyArray
 
 from jaxflex._progress import Progress
 from jaxflex.parallel import gathered, gathered_sharding
+from jaxflex.parameters import into_unit_box
 
 FitnessFn = Callable[[Float[Array, "P d"]], Float[Array, " P"]]
 
@@ -155,8 +156,8 @@ def initial_population(
 ) -> Float[Array, "P d"]:
     """Uniform random points in the unit box; the first ``k`` rows are ``init_population``.
 
-    Seeding lets a caller warm-start the search (e.g. from a previous fit); rows are clipped to
-    the box (:func:`run` rejects rows outside it before getting here).
+    Seeding lets a caller warm-start the search (e.g. from a previous fit); :func:`run` brings
+    the rows into the box (:func:`jaxflex.parameters.into_unit_box`) before they get here.
     """
     x = jax.random.uniform(key, (population, dim), dtype=jnp.result_type(float))
     if init_population is None:
@@ -306,9 +307,7 @@ def _check_init_population(init_population: ArrayLike, population: int, dim: int
             f"init_population must have shape (k, {dim}) with 1 <= k <= population={population}, "
             f"got {seeds.shape}"
         )
-    if not np.all(np.isfinite(seeds)) or np.any(seeds < 0.0) or np.any(seeds > 1.0):
-        raise ValueError("init_population must lie in the unit box [0, 1]^d (finite values)")
-    return seeds
+    return into_unit_box(seeds, "init_population")
 
 
 def run(

@@ -1,0 +1,175 @@
+"""discover on records jaxflex did not write: data-logger file formats, an independent integrator.
+
+Every record set is simulated (by jaxflex, or by SciPy Radau on the FEM equations in
+``reference_solver``), read by an encoder of ``counts`` per revolution whose grid is offset from
+zero and by an accelerometer with the spec's white noise, and written to CSV as a data logger
+writes it: with a fixed number of significant digits, or as float32 numbers. ``discover`` starts
+near the truth (as in ``test_discover``), estimates every noise level from the files, and must add
+nothing to clean records, name a hidden payload, and end within 1.3× the noise floor: the NRMSE of
+the noise-free truth against the written records.
+
+A few representative cases run by default; the whole matrix (6, 7, 9 and 17 digits, float32,
+1024–10000 counts, 500 Hz and 1 kHz, 1.5–3 s) is marked slow.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import pytest
+from reference_solver import radau_reference
+from test_discover import START, TRUTH
+
+from jaxflex.data import Dataset, load_record
+from jaxflex.discover import discover
+from jaxflex.effects import get_effect
+from jaxflex.metrics import nrmse
+from jaxflex.model import Model
+from jaxflex.signals import reference_input
+from jaxflex.simulate import simulate
+from jaxflex.synthetic import ACCELEROMETER_SIGMA
+
+INPUTS = ("triangular", "pulse", "half_sine")
+PAYLOAD = 0.03  # kg, the hidden effect
+CHANNELS = ("joint_angle", "tip_acceleration")
+FLOOR_FACTOR = 1.3
+
+
+@dataclass(frozen=True)
+class Logger:
+    """How a logger records: digits (``None``: float32), encoder counts/rev, rate, duration."""
+
+    digits: int | None
+    counts: int
+    rate: float  # Hz
+    duration: float  # s
+
+    @property
+    def step(self) -> float:
+        return 2.0 * math.pi / self.counts
+
+    @property
+    def offset(self) -> float:
+        """Where the encoder's grid sits: a fraction of a count away from zero."""
+        return 0.37 * self.step
+
+    def __str__(self) -> str:
+        digits = "float32" if self.digits is None else f"{self.digits}digits"
+        return f"{digits}-{self.counts}cpr-{self.rate:g}Hz-{self.duration:g}s"
+
+    def write(self, values: np.ndarray) -> list[str]:
+        if self.digits is None:
+            return [str(np.float32(v)) for v in values]
+        return [f"{v:.{self.digits - 1}e}" for v in values]
+
+
+MATRIX = (
+    Logger(6, 1024, 1000.0, 2.0),
+    Logger(7, 2000, 500.0, 3.0),
+    Logger(9, 4096, 1000.0, 1.5),
+    Logger(17, 10000, 500.0, 2.0),
+    Logger(None, 4096, 1000.0, 3.0),
+    Logger(6, 10000, 1000.0, 1.5),
+    Logger(9, 1000, 500.0, 1.5),
+    Logger(None, 2000, 500.0, 2.0),
+)
+DEFAULT_CLEAN = MATRIX[0]
+#: The layout of the clean default (and of test_discover), so the compiled Jacobian is shared.
+DEFAULT_PAYLOAD = Logger(9, 4096, 1000.0, 2.0)
+
+
+def jaxflex_outputs(model, params, torque, dt):
+    out = simulate(model, params, torque, dt)
+    return np.asarray(out.joint_angle), np.asarray(out.tip_acceleration)
+
+
+def radau_outputs(model, params, torque, dt):
+    angle, acceleration, _ = radau_reference(model, params, torque, dt, rtol=1e-8, atol=1e-10)
+    return angle, acceleration
+
+
+def logger_records(folder: Path, logger: Logger, effects: dict, outputs=jaxflex_outputs,
+                   seed: int = 0) -> tuple[Dataset, dict[str, float]]:
+    """The records of the truth (base ``TRUTH`` plus ``effects``: name → {param: value}) as
+    ``logger`` writes them, and the noise floor per channel (NRMSE %, mean over records)."""
+    model = Model().with_effects(*(get_effect(e) for e in effects))
+    params = {**TRUTH, **{k: v for values in effects.values() for k, v in values.items()}}
+    dt = 1.0 / logger.rate
+    rng = np.random.default_rng(seed)
+    records, floors = [], []
+    for name in INPUTS:
+        time, torque = reference_input(name, duration=logger.duration, dt=dt)
+        angle, acceleration = outputs(model, params, torque, dt)
+        read = logger.offset + logger.step * np.round((angle - logger.offset) / logger.step)
+        noisy = acceleration + ACCELEROMETER_SIGMA * rng.standard_normal(acceleration.size)
+        path = folder / f"{name}.csv"
+        columns = [logger.write(c) for c in (time, torque, read, noisy)]
+        lines = ["time,torque,joint_angle,tip_acceleration"]
+        lines += [",".join(row) for row in zip(*columns, strict=True)]
+        path.write_text("\n".join(lines) + "\n")
+        record = load_record(path)
+        records.append(record)
+        floors.append([nrmse(record.channel(c), truth)
+                       for c, truth in zip(CHANNELS, (angle, acceleration), strict=True)])
+    return Dataset(records), dict(zip(CHANNELS, np.mean(floors, axis=0), strict=True))
+
+
+def check_clean(report, floor, logger: Logger) -> None:
+    assert report.added == () and report.unexplained is None, report.table()
+    angle = report.noise["joint_angle"]
+    assert angle.source == "quantisation", report.table()
+    assert angle.step == pytest.approx(logger.step, rel=1e-6)
+    for c in CHANNELS:
+        assert report.final.nrmse[c] <= FLOOR_FACTOR * floor[c], (c, floor, report.table())
+
+
+def check_payload(report, floor) -> None:
+    assert report.added == ("payload",) and report.unexplained is None, report.table()
+    assert report.params["m_p"] == pytest.approx(PAYLOAD, rel=0.05)
+    for c in CHANNELS:
+        assert report.final.nrmse[c] <= FLOOR_FACTOR * floor[c], (c, floor, report.table())
+
+
+def run_clean(tmp_path, logger, outputs=jaxflex_outputs):
+    records, floor = logger_records(tmp_path, logger, {}, outputs)
+    check_clean(discover(records, initial=START), floor, logger)
+
+
+def run_payload(tmp_path, logger, outputs=jaxflex_outputs):
+    records, floor = logger_records(tmp_path, logger, {"payload": {"m_p": PAYLOAD}}, outputs)
+    check_payload(discover(records, initial=START), floor)
+
+
+def test_clean_logger_records_add_nothing(tmp_path):
+    run_clean(tmp_path, DEFAULT_CLEAN)
+
+
+def test_logger_records_name_a_hidden_payload(tmp_path):
+    run_payload(tmp_path, DEFAULT_PAYLOAD)
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("logger", MATRIX, ids=str)
+def test_clean_logger_matrix(tmp_path, logger):
+    run_clean(tmp_path, logger)
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("logger", MATRIX, ids=str)
+def test_payload_logger_matrix(tmp_path, logger):
+    run_payload(tmp_path, logger)
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("logger", [MATRIX[0], MATRIX[4]], ids=str)
+def test_radau_records_clean(tmp_path, logger):
+    run_clean(tmp_path, logger, radau_outputs)
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("logger", [MATRIX[2], MATRIX[1]], ids=str)
+def test_radau_records_payload(tmp_path, logger):
+    run_payload(tmp_path, logger, radau_outputs)
