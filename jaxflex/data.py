@@ -334,7 +334,7 @@ def load_record(
         steps = np.diff(columns["time"])
         dt = float(np.median(steps))
         gap = int(np.argmax(steps))
-        gap_text = f"{row(gap)} to {row(gap + 1)} ({float(steps[gap])!r} s)"
+        gap_text = f"{row(gap)} to {row(gap + 1)} ({float(steps[gap]):.6g} s)"
         columns = _resample_columns(columns, dt)
         row = _sample_label
         warnings.warn(

@@ -36,7 +36,17 @@ def _interval(text: str, label: str) -> tuple[float, float]:
     low, high = _number(lo, label), _number(hi, label)
     if not low < high:
         raise UsageError(f"{label}={text}: lower bound {low!r} must be below upper {high!r}")
+    decades = math.log10(high) - math.log10(low) if low > 0 else 0.0
+    if decades > MAX_BOUND_DECADES:
+        raise UsageError(
+            f"{label}={text}: spans {decades:.0f} decades; a search box wider "
+            f"than {MAX_BOUND_DECADES} decades leaves the simulation's range; narrow it"
+        )
     return low, high
+
+
+MAX_BOUND_DECADES = 12
+"""Widest ``--bound`` (upper/lower) accepted: beyond it candidates overflow the simulation."""
 
 
 PAIR_OPTIONS: tuple[tuple[str, str, str, str, Callable[[str, str], Any]], ...] = (
