@@ -238,7 +238,7 @@ class Dataset(Sequence[Record]):
         if duplicated:
             raise RecordError(
                 f"record names must be unique in a data set; repeated: {duplicated} "
-                "(give records distinct names, e.g. load_record(path, name=...))"
+                "(rename one of the files, or give a name: load_record(path, name=...))"
             )
         for r in records[1:]:
             first = records[0]
@@ -307,13 +307,19 @@ class Dataset(Sequence[Record]):
 
 
 def load_record(
-    path: str | os.PathLike, *, name: str | None = None, resample: bool = False
+    path: str | os.PathLike,
+    *,
+    name: str | None = None,
+    resample: bool = False,
+    unit_check: bool = True,
 ) -> Record:
     """Read and validate a record from a ``.csv`` or ``.npz`` file.
 
     ``name`` defaults to the file stem. A non-uniform time column is an error unless
     ``resample=True``, which interpolates all columns linearly onto a grid with the median step
-    (with a :class:`RecordWarning`).
+    (with a :class:`RecordWarning` that names the longest gap). Columns whose units look wrong
+    (time in ms, angle in degrees, torque far off scale; :func:`check_units`) are an error
+    unless ``unit_check=False``.
     """
     path = Path(path)
     suffix = _suffix(path)
@@ -325,17 +331,24 @@ def load_record(
     columns = _check_arrays(columns, where, row, min_samples=MIN_FILE_SAMPLES)
     n = columns["time"].shape[0]
     if resample and _irregular_step(columns["time"]) is not None:
-        dt = float(np.median(np.diff(columns["time"])))
+        steps = np.diff(columns["time"])
+        dt = float(np.median(steps))
+        gap = int(np.argmax(steps))
+        gap_text = f"{row(gap)} to {row(gap + 1)} ({float(steps[gap]):.6g} s)"
         columns = _resample_columns(columns, dt)
         row = _sample_label
         warnings.warn(
             f"{where}: time column is not uniformly sampled; resampled {n} samples onto "
-            f"{columns['time'].shape[0]} with the median step {dt!r} s by linear interpolation",
+            f"{columns['time'].shape[0]} with the median step {dt!r} s by linear interpolation; "
+            f"the longest gap, {gap_text}, is {float(steps[gap]) / dt:.3g} steps: the samples "
+            "in it are interpolated, not measured",
             RecordWarning,
             stacklevel=2,
         )
     _check_uniform(columns["time"], where, row, hint="; pass resample=True to resample it")
     _check_excitation_and_units(columns, where)
+    if unit_check:
+        check_units(columns, where)
     extras = {c: a for c, a in columns.items() if c not in REQUIRED_COLUMNS}
     return Record(
         **{c: columns[c] for c in REQUIRED_COLUMNS},
@@ -347,20 +360,26 @@ def load_record(
 
 
 def load_dataset(
-    paths: str | os.PathLike | Iterable[str | os.PathLike], *, resample: bool = False
+    paths: str | os.PathLike | Iterable[str | os.PathLike],
+    *,
+    resample: bool = False,
+    unit_check: bool = True,
 ) -> Dataset:
-    """Load records into a :class:`Dataset`; a directory means all its .csv/.npz files, sorted."""
+    """Load records into a :class:`Dataset`; a directory means all its .csv/.npz files, sorted
+    (sub-directories are skipped, whatever their names)."""
     if isinstance(paths, (str, os.PathLike)):
         root = Path(paths)
         if root.is_dir():
-            files = sorted(p for p in root.iterdir() if p.suffix.lower() in _SUFFIXES)
+            files = sorted(
+                p for p in root.iterdir() if p.suffix.lower() in _SUFFIXES and p.is_file()
+            )
             if not files:
                 raise RecordError(f"{root}: directory holds no .csv or .npz record files")
         else:
             files = [root]
     else:
         files = [Path(p) for p in paths]
-    return Dataset(load_record(p, resample=resample) for p in files)
+    return Dataset(load_record(p, resample=resample, unit_check=unit_check) for p in files)
 
 
 def save_record(record: Record, path: str | os.PathLike, *, overwrite: bool = False) -> Path:
@@ -404,6 +423,8 @@ def _read_csv(path: Path) -> tuple[dict[str, np.ndarray], RowLabel, dict[str, st
         text = path.read_text(encoding="utf-8-sig")
     except UnicodeDecodeError as err:
         raise RecordError(f"{where}: not a UTF-8 text file ({err})") from None
+    except IsADirectoryError:
+        raise RecordError(f"{where}: is a directory, not a record file") from None
     metadata: dict[str, str] = {}
     header: list[str] | None = None
     header_line = 0
@@ -415,12 +436,14 @@ def _read_csv(path: Path) -> tuple[dict[str, np.ndarray], RowLabel, dict[str, st
             continue
         if stripped.startswith("#"):
             _parse_comment(stripped[1:], metadata, where, lineno)
+        elif header is None and not rows and _excel_separator(stripped, where, lineno):
+            continue
         elif header is None:
-            header, header_line = [c.strip() for c in stripped.split(",")], lineno
+            header, header_line = [_unquote(c) for c in stripped.split(",")], lineno
             _check_header(header, where, lineno)
         else:
             lines.append(lineno)
-            rows.append(stripped.split(","))
+            rows.append([_unquote(c) for c in stripped.split(",")])
     if header is None:
         raise RecordError(f"{where}: no header line (expected {', '.join(REQUIRED_COLUMNS)})")
     values = np.empty((len(rows), len(header)))
@@ -434,6 +457,27 @@ def _read_csv(path: Path) -> tuple[dict[str, np.ndarray], RowLabel, dict[str, st
             values[i, j] = _parse_cell(cell, where, lineno, header[j])
     columns = {c: values[:, j] for j, c in enumerate(header)}
     return columns, lambda i: f"line {lines[i]}", metadata
+
+
+def _excel_separator(line: str, where: str, lineno: int) -> bool:
+    """Whether ``line`` is Excel's ``sep=,`` line (skipped); another separator is an error."""
+    match = re.fullmatch(r'"?sep=(.)"?,*', line)
+    if match is None:
+        return False
+    if match.group(1) != ",":
+        raise RecordError(
+            f"{where}: line {lineno}: {line!r} declares the separator {match.group(1)!r}; record "
+            "files are comma-separated"
+        )
+    return True
+
+
+def _unquote(cell: str) -> str:
+    """A CSV cell without surrounding spaces and RFC-4180 double quotes (``"time"`` → time)."""
+    cell = cell.strip()
+    if len(cell) >= 2 and cell[0] == cell[-1] == '"':
+        cell = cell[1:-1].replace('""', '"').strip()
+    return cell
 
 
 def _parse_comment(text: str, metadata: dict[str, str], where: str, lineno: int) -> None:
@@ -497,6 +541,16 @@ def _parse_cell(cell: str, where: str, lineno: int, column: str) -> float:
 def _read_npz(path: Path) -> tuple[dict[str, np.ndarray], RowLabel, dict[str, str]]:
     """Read an NPZ record: one array per column, optional JSON metadata."""
     where = str(path)
+    try:
+        with open(path, "rb") as f:
+            magic = f.read(4)
+    except IsADirectoryError:
+        raise RecordError(f"{where}: is a directory, not a record file") from None
+    if magic != b"PK\x03\x04":
+        raise RecordError(
+            f"{where}: not an NPZ file (an .npz record is a NumPy zip archive, written by "
+            "numpy.savez; is it a text file with the wrong suffix?)"
+        )
     try:
         with np.load(path, allow_pickle=False) as npz:
             arrays = {k: npz[k] for k in npz.files}
@@ -612,6 +666,96 @@ def _check_excitation_and_units(columns: Mapping[str, np.ndarray], where: str) -
         )
 
 
+def check_units(columns: Mapping[str, np.ndarray], where: str = "record") -> None:
+    """Stop (RecordError) on columns whose units are implausible for a lab arm.
+
+    * time: a step of :data:`MAX_PLAUSIBLE_DT` s or more (milliseconds or sample numbers?);
+    * joint angle: constant although the torque is not (encoder not connected?);
+    * joint angle against tip acceleration integrated twice (the tip's path, up to a drift): their
+      ratio is the arm's length; below :data:`MIN_PLAUSIBLE_LENGTH` the angle is in degrees;
+    * torque against angular acceleration, speed and direction (least squares): an inertia
+      above :data:`MAX_PLAUSIBLE_INERTIA` means a torque far too large (not in N m).
+
+    Each message says how to load the file anyway (``unit_check=False``; CLI: --no-unit-check).
+    """
+    skip = " (pass unit_check=False to skip this check)"
+    time = columns["time"]
+    dt = float(time[-1] - time[0]) / (time.shape[0] - 1)
+    if dt >= MAX_PLAUSIBLE_DT:
+        raise RecordError(
+            f"{where}: column 'time': step {dt:.6g} s ({1 / dt:.3g} Hz sampling); is time in "
+            f"milliseconds or sample numbers? time must be in s{skip}"
+        )
+    angle, torque = columns["joint_angle"], columns["torque"]
+    if np.ptp(angle) == 0:
+        raise RecordError(
+            f"{where}: column 'joint_angle' is constant ({float(angle[0])!r}) although the "
+            f"torque is not; is the encoder connected?{skip}"
+        )
+    if "tip_acceleration" in columns:
+        length = _effective_length(time, angle, columns["tip_acceleration"])
+        if length is not None and abs(length) < MIN_PLAUSIBLE_LENGTH:
+            raise RecordError(
+                f"{where}: column 'joint_angle' against the twice-integrated 'tip_acceleration' "
+                f"implies an arm {abs(length):.3g} m long (below {MIN_PLAUSIBLE_LENGTH:g} m); is "
+                f"the angle in degrees? joint_angle must be in rad{skip}"
+            )
+    inertia = _effective_inertia(time, angle, torque)
+    if inertia is not None and inertia > MAX_PLAUSIBLE_INERTIA:
+        raise RecordError(
+            f"{where}: column 'torque': the record implies a joint inertia of {inertia:.3g} "
+            f"kg m^2, above {MAX_PLAUSIBLE_INERTIA:g}; is the torque in N m (and the angle in "
+            f"rad, time in s)?{skip}"
+        )
+
+
+MAX_PLAUSIBLE_DT = 0.05
+"""A sampling step this long (20 Hz) cannot resolve a flexible arm: time is in ms, or counts."""
+MIN_PLAUSIBLE_LENGTH = 0.05
+"""Shortest plausible arm (m), tip path over joint angle; a degree angle makes it 57x shorter."""
+MAX_PLAUSIBLE_INERTIA = 1e3
+"""A joint inertia (kg m²) above any lab arm's: the torque is far too large (not in N m)."""
+
+
+def _fit_share(basis: np.ndarray, y: np.ndarray) -> tuple[np.ndarray, float]:
+    """Least-squares coefficients of ``y`` on the columns of ``basis``, and how much worse the
+    fit gets without the first column (residual ratio; large = the first column is needed)."""
+    coef, *_ = np.linalg.lstsq(basis, y, rcond=None)
+    rest, *_ = np.linalg.lstsq(basis[:, 1:], y, rcond=None)
+    with_first = float(np.sum((y - basis @ coef) ** 2))
+    without = float(np.sum((y - basis[:, 1:] @ rest) ** 2))
+    return coef, without / with_first if with_first > 0 else math.inf
+
+
+def _integral(x: np.ndarray, time: np.ndarray) -> np.ndarray:
+    from scipy.integrate import cumulative_trapezoid
+
+    return cumulative_trapezoid(x, time, initial=0)
+
+
+def _effective_inertia(time: np.ndarray, angle: np.ndarray, torque: np.ndarray) -> float | None:
+    """``|J|`` of ``J·θ'' + b·θ' + c·sign(θ') = τ`` integrated twice (noise-robust; constants of
+    integration fitted), or None when the angle does not determine it."""
+    speed = np.gradient(angle, time)
+    sign = np.tanh(speed / (1e-3 + 0.01 * float(np.ptp(speed))))
+    tau = (time - time[0]) / (time[-1] - time[0])
+    theta = angle - angle[0]
+    basis = np.column_stack([theta, _integral(theta, time), _integral(_integral(sign, time), time),
+                             np.ones_like(tau), tau])
+    coef, needed = _fit_share(basis, _integral(_integral(torque, time), time))
+    return abs(float(coef[0])) if needed > 4 else None
+
+
+def _effective_length(time: np.ndarray, angle: np.ndarray, tip: np.ndarray) -> float | None:
+    """``L`` in ``∬ tip_acceleration ≈ L·angle + a + b·t + c·t²`` (the quadratic takes the
+    drift of an accelerometer offset), or None when that explains less than half the path."""
+    path = _integral(_integral(tip, time), time)
+    tau = (time - time[0]) / (time[-1] - time[0])
+    basis = np.column_stack([angle - angle[0], np.ones_like(tau), tau, tau**2])
+    coef, needed = _fit_share(basis, path)
+    return float(coef[0]) if needed > 2 else None
+
+
 def _check_extra_name(key: object, where: str) -> None:
     """Extra column names must be writable as a CSV header cell and not shadow a column."""
     if (
@@ -702,6 +846,7 @@ __all__ = [
     "Record",
     "RecordError",
     "RecordWarning",
+    "check_units",
     "load_dataset",
     "load_record",
     "save_npz",

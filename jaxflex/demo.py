@@ -15,7 +15,8 @@
 
 Each step is a function ``DemoState → DemoState``; :data:`STEPS` lists them in order, so the
 story grows by appending steps. Nothing is overwritten unless asked: every file the demo would
-write is checked before the first step runs.
+write is checked before the first step runs, and the files appear together when the last step
+has succeeded (:func:`jaxflex._io.all_or_nothing`).
 """
 
 from __future__ import annotations
@@ -27,7 +28,7 @@ from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
-from jaxflex._io import check_writable
+from jaxflex._io import all_or_nothing, check_writable
 from jaxflex.compare import Comparison, compare
 from jaxflex.data import Dataset, save_record
 from jaxflex.synthetic import (
@@ -182,13 +183,14 @@ def run_demo(
     for path in planned_files(out):
         check_writable(path, overwrite)
     state = DemoState(out=out, seed=seed, overwrite=overwrite, echo=echo)
-    for name, step in steps:
-        echo(f"== {name}")
-        start = time.perf_counter()
-        state = step(state)
-        elapsed = time.perf_counter() - start
-        state = replace(state, timings=state.timings | {name: elapsed})
-        echo(f"   ({elapsed:.1f} s)")
+    with all_or_nothing():  # the files appear when every step has succeeded, or not at all
+        for name, step in steps:
+            echo(f"== {name}")
+            start = time.perf_counter()
+            state = step(state)
+            elapsed = time.perf_counter() - start
+            state = replace(state, timings=state.timings | {name: elapsed})
+            echo(f"   ({elapsed:.1f} s)")
     total = sum(state.timings.values())
     echo(f"== done in {total:.1f} s; wrote {len(state.files)} files to {out}/")
     echo(f"   try: jaxflex validate {out}/records --fit {out}/fit.json")

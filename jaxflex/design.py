@@ -424,8 +424,18 @@ def design_input(
         "max_angle": _positive(max_angle, "max_angle"),
         "max_speed": _positive(max_speed, "max_speed"),
     }
+    if limits["rms_torque"] > limits["peak_torque"]:
+        raise ValueError(
+            f"rms_torque={rms_torque!r} exceeds max_torque={max_torque!r}; the RMS of a torque "
+            "cannot exceed its peak"
+        )
     if harmonics is None:
         harmonics = int(math.floor(_positive(max_frequency, "max_frequency") * duration + 1e-9))
+    if not (isinstance(harmonics, (int, np.integer)) and 1 <= harmonics < duration / (2 * dt)):
+        raise ValueError(
+            f"harmonics={harmonics!r} must be an int >= 1 below the Nyquist frequency "
+            f"({duration / (2 * dt):g} harmonics of 1/duration); raise max_frequency or duration"
+        )
     if not (isinstance(iterations, (int, np.integer)) and iterations >= 0):
         raise ValueError(f"iterations={iterations!r} must be an int >= 0")
     if not (isinstance(seed, (int, np.integer)) and seed >= 0):

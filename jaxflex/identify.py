@@ -22,7 +22,7 @@ import math
 import os
 import time
 from collections.abc import Mapping, Sequence
-from dataclasses import MISSING, dataclass, field, fields
+from dataclasses import dataclass, field, fields
 from pathlib import Path
 from typing import Any
 
@@ -192,6 +192,10 @@ class Fit:
             if isinstance(value, (History, Refinement)):
                 value = value.to_dict()
             data[f.name] = value
+        if data["refinement"] is not None:  # times only under "timing": the rest reproduces
+            data["refinement"] = {
+                k: v for k, v in data["refinement"].items() if k not in _REFINEMENT_TIMES
+            }
         return to_jsonable(data)
 
     def to_json(self, path: str | os.PathLike, overwrite: bool = False) -> Path:
@@ -200,14 +204,14 @@ class Fit:
 
     @classmethod
     def from_dict(cls, data: Mapping[str, Any]) -> Fit:
-        if data.get("format") != FIT_FORMAT:
-            raise ValueError(f"not a jaxflex fit (format {data.get('format')!r}, "
-                             f"expected {FIT_FORMAT!r})")
-        required = [f.name for f in fields(cls) if f.default is f.default_factory is MISSING]
-        missing = [n for n in required if n not in data]
-        if missing:
-            raise ValueError(f"fit lacks field(s) {missing}")
+        """A fit from :meth:`to_dict`'s contents, checked field by field (:func:`check_fit`)."""
+        check_fit(data)
         refinement = data["refinement"]
+        if refinement is not None:  # its times are kept under "timing"
+            timing = data["timing"]
+            refinement = dict(refinement)
+            refinement.setdefault("wall_time", _float(timing.get("refine")))
+            refinement.setdefault("compile_time", _float(timing.get("refine_compile")))
         return cls(
             params={k: _float(v) for k, v in data["params"].items()},
             names=tuple(data["names"]),
@@ -239,16 +243,187 @@ class Fit:
         """Read a fit written by :meth:`to_json`; errors name the file."""
         path = Path(path)
         try:
-            data = json.loads(path.read_text())
-        except json.JSONDecodeError as exc:
-            raise ValueError(f"{path}: not valid JSON ({exc})") from None
+            data = json.loads(path.read_text(encoding="utf-8"))
+        except (json.JSONDecodeError, UnicodeDecodeError) as exc:
+            raise ValueError(f"{path}: not a JSON file ({exc})") from None
+        except RecursionError:
+            raise ValueError(f"{path}: JSON nested too deeply") from None
         if not isinstance(data, dict):
             raise ValueError(f"{path}: not a jaxflex fit (expected a JSON object)")
         try:
             return cls.from_dict(data)
-        except (KeyError, TypeError, ValueError) as exc:
+        except (KeyError, TypeError, ValueError, OverflowError) as exc:
             message = exc.args[0] if exc.args else exc
             raise ValueError(f"{path}: {message}") from None
+
+
+# ------------------------------------------------------------------------------ fit file schema
+
+_REFINEMENT_TIMES = ("wall_time", "compile_time")
+MAX_ELEMENTS = 1000
+"""A fit file asking for a beam of more elements is refused (a typing error, not a model)."""
+
+
+class _Invalid(ValueError):
+    pass
+
+
+def _is_number(v: Any) -> bool:
+    return isinstance(v, (int, float)) and not isinstance(v, bool)
+
+
+def _number_field(nullable: bool = True, finite: bool = False):
+    def check(v: Any, at: str) -> None:
+        if v is None and nullable:
+            return
+        if not _is_number(v) or (finite and not math.isfinite(v)):
+            what = "a finite number" if finite else "a number" + (" or null" if nullable else "")
+            raise _Invalid(f"field {at!r}: expected {what}, got {_show(v)}")
+    return check
+
+
+def _typed(kind: type | tuple[type, ...], label: str):
+    def check(v: Any, at: str) -> None:
+        if not isinstance(v, kind) or isinstance(v, bool) and kind is not bool:
+            raise _Invalid(f"field {at!r}: expected {label}, got {_show(v)}")
+    return check
+
+
+def _list_of(item, length: int | None = None):
+    def check(v: Any, at: str) -> None:
+        if not isinstance(v, list):
+            raise _Invalid(f"field {at!r}: expected a list, got {_show(v)}")
+        if length is not None and len(v) != length:
+            raise _Invalid(f"field {at!r}: expected {length} values, got {len(v)}")
+        for i, x in enumerate(v):
+            item(x, f"{at}[{i}]")
+    return check
+
+
+def _object_of(value, keys: Sequence[str] | None = None):
+    def check(v: Any, at: str) -> None:
+        if not isinstance(v, dict):
+            raise _Invalid(f"field {at!r}: expected an object, got {_show(v)}")
+        missing = [k for k in keys or () if k not in v]
+        if missing:
+            raise _Invalid(f"field {at!r}: lacks {missing}")
+        for k, x in v.items():
+            value(x, f"{at}.{k}")
+    return check
+
+
+def _record(schema: Mapping[str, Any], optional: Sequence[str] = ()):
+    """An object with the given fields (``optional`` ones may be absent; others are free)."""
+    def check(v: Any, at: str) -> None:
+        if not isinstance(v, dict):
+            raise _Invalid(f"field {at!r}: expected an object, got {_show(v)}")
+        missing = [k for k in schema if k not in v and k not in optional]
+        if missing:
+            raise _Invalid(f"field {at!r}: lacks {missing}" if at else f"fit lacks field(s) "
+                           f"{missing}")
+        for k, sub in schema.items():
+            if k in v:
+                sub(v[k], f"{at}.{k}" if at else k)
+    return check
+
+
+def _matrix_field(v: Any, at: str) -> None:
+    _list_of(_list_of(_number_field()))(v, at)
+    if any(len(row) != len(v) for row in v):
+        raise _Invalid(f"field {at!r}: expected a square matrix, got rows of lengths "
+                       f"{sorted({len(row) for row in v})} for {len(v)} rows")
+
+
+def _n_elements(v: Any, at: str) -> None:
+    if not (isinstance(v, int) and not isinstance(v, bool) and 1 <= v <= MAX_ELEMENTS):
+        raise _Invalid(f"field {at!r}: expected a whole number in [1, {MAX_ELEMENTS}], "
+                       f"got {_show(v)}")
+
+
+def _one_of(*allowed: Any):
+    def check(v: Any, at: str) -> None:
+        if v not in allowed:
+            raise _Invalid(f"field {at!r}: expected one of {list(allowed)}, got {_show(v)}")
+    return check
+
+
+def _nullable(check_value):
+    def check(v: Any, at: str) -> None:
+        if v is not None:
+            check_value(v, at)
+    return check
+
+
+def _show(v: Any) -> str:
+    text = json.dumps(v) if not isinstance(v, float) or math.isfinite(v) else repr(v)
+    return text if len(text) <= 40 else text[:37] + "..."
+
+
+_STRINGS = _list_of(_typed(str, "a string"))
+_NUMBERS = _list_of(_number_field())
+_PARAMS = _object_of(_number_field(nullable=False, finite=True))
+FIT_SCHEMA = _record({
+    "format": _one_of(FIT_FORMAT),
+    "params": _PARAMS,
+    "names": _STRINGS,
+    "fixed": _PARAMS,
+    "model_description": _record({
+        "testbed": _record({"n_elements": _n_elements}, optional=("n_elements",)),
+        "effects": _list_of(_record({"name": _typed(str, "a string"),
+                                     "settings": _typed(dict, "an object")},
+                                    optional=("settings",))),
+        "n_substeps": _typed(int, "a whole number"),
+    }),
+    "cost": _number_field(),
+    "cost_search": _number_field(),
+    "intervals": _object_of(_list_of(_number_field(), length=2)),
+    "std": _object_of(_number_field()),
+    "covariance": _matrix_field,
+    "correlation": _matrix_field,
+    "noise": _object_of(_number_field()),
+    "poorly_identifiable": _STRINGS,
+    "warnings": _STRINGS,
+    "history": _record({"best": _NUMBERS, "mean": _NUMBERS, "best_params": _object_of(_NUMBERS)}),
+    "refinement": _nullable(_record({
+        "start": _PARAMS, "end": _PARAMS, "cost_start": _number_field(),
+        "cost_end": _number_field(), "accepted": _typed(bool, "true or false"),
+        "result": _typed(str, "a string"), "message": _typed(str, "a string"),
+        "steps": _typed(int, "a whole number"), "n_starts": _typed(int, "a whole number"),
+        "wall_time": _number_field(), "compile_time": _number_field(),
+    }, optional=("n_starts", *_REFINEMENT_TIMES))),
+    "method": _one_of(*METHODS),
+    "seed": _typed(int, "a whole number"),
+    "settings": _typed(dict, "an object"),
+    "timing": _object_of(_number_field()),
+    "record_names": _STRINGS,
+    "level": _number_field(nullable=False, finite=True),
+    "identifiability": _record({"eigenvalues": _NUMBERS, "eigenvectors": _matrix_field},
+                               optional=("eigenvalues", "eigenvectors")),
+    "provenance": _typed(dict, "an object"),
+}, optional=("level", "identifiability", "provenance"))
+"""The fit file, field by field: each entry checks one field and names it when it is wrong."""
+
+
+def check_fit(data: Any) -> None:
+    """Check the contents of a fit file against :data:`FIT_SCHEMA` and its own consistency
+    (identified names among the parameters, matrices the size of the names); a ValueError
+    names the first wrong field."""
+    if not isinstance(data, dict):
+        raise ValueError(f"not a jaxflex fit (expected a JSON object, got {_show(data)})")
+    if data.get("format") != FIT_FORMAT:
+        raise ValueError(f"not a jaxflex fit (format {data.get('format')!r}, "
+                         f"expected {FIT_FORMAT!r})")
+    FIT_SCHEMA(data, "")
+    unknown = [n for n in data["names"] if n not in data["params"]]
+    if unknown:
+        raise ValueError(f"field 'names': {unknown} not among the 'params'")
+    n = len(data["names"])
+    for key in ("covariance", "correlation"):
+        if len(data[key]) not in (0, n):
+            raise ValueError(f"field {key!r}: expected {n} x {n} (one row per name), "
+                             f"got {len(data[key])} rows")
+    if not 0 < data.get("level", 0.95) < 1:
+        raise ValueError(f"field 'level': expected a number in (0, 1), got {data['level']!r}")
 
 
 def load_fit(path: str | os.PathLike) -> Fit:

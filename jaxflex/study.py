@@ -56,6 +56,13 @@ class StudyRun:
             history=np.asarray(fit.history.best),
         )
 
+    def to_dict(self) -> dict[str, Any]:
+        """The run as JSON contents; the times, which differ between identical runs, go under
+        ``"timing"`` so that everything else can be compared."""
+        data = dict(self.__dict__)
+        data["timing"] = {k: data.pop(k) for k in ("wall_time", "compile_time")}
+        return data
+
 
 @dataclass(frozen=True)
 class Study:
@@ -125,7 +132,7 @@ class Study:
                 "record_names": self.record_names,
                 "settings": self.settings,
                 "summary": self.summary(),
-                "runs": [r.__dict__ for r in self.runs],
+                "runs": [r.to_dict() for r in self.runs],
                 "provenance": self.provenance,
             }
         )
@@ -155,8 +162,9 @@ def run_study(
     seeds = [int(s) for s in seeds]
     if not methods or not seeds:
         raise ValueError("a study needs at least one method and one seed")
-    if len(set(seeds)) != len(seeds):
-        raise ValueError(f"seeds repeat: {seeds}")
+    for label, values in (("seeds", seeds), ("methods", methods)):
+        if len(set(values)) != len(values):
+            raise ValueError(f"{label} repeat: {values}; each run would be counted twice")
     dataset = as_dataset(records)
     identify_kwargs.setdefault("intervals", False)
     runs = []

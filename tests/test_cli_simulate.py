@@ -41,7 +41,7 @@ def test_writes_the_simulated_record_and_refuses_to_overwrite(tmp_path, capsys):
         (["--set", "E_mod=1"], "unknown name(s) ['E_mod']"),
         (["--set", "E"], "--set expects NAME=VALUE, got 'E'"),
         (["--set", "E=abc"], "--set E: 'abc' is not a number"),
-        (["--dt", "0"], "--dt must be a positive number"),
+        (["--dt", "0"], "argument --dt: 0 must be a finite number > 0"),
         (["--duration", "0.001"], "shorter than two samples"),
     ],
 )

@@ -203,7 +203,12 @@ def test_angle_in_degrees_is_flagged(files, tmp_path, capsys):
 
     path, _ = rewrite_rows(files["records"][1], tmp_path / "deg.csv", degrees)
     with pytest.warns(RecordWarning, match="'joint_angle'.*degrees"):
-        assert validate(path, "--fit", files["fit"]) == 0
+        assert validate(path, "--fit", files["fit"]) == 2  # stopped by the unit check
+    err = capsys.readouterr().err
+    assert "deg.csv: column 'joint_angle'" in err and "is the angle in degrees?" in err
+    assert "pass --no-unit-check to skip this check" in err
+    with pytest.warns(RecordWarning, match="'joint_angle'.*degrees"):
+        assert validate(path, "--fit", files["fit"], "--no-unit-check") == 0
     (row,) = [ln.split() for ln in capsys.readouterr().out.splitlines() if ln.startswith("deg ")]
     assert float(row[2]) > 90  # NRMSE angle %: the model, in radians, misses by a factor 57
 

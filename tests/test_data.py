@@ -349,7 +349,7 @@ def test_missing_header(tmp_path):
 def test_not_an_npz_file(tmp_path):
     path = tmp_path / "r.npz"
     path.write_text("time,torque\n")
-    load_error(str(path), "cannot read as an NPZ record")
+    load_error(str(path), "not an NPZ file", "is it a text file with the wrong suffix?")
 
 
 def test_unsupported_suffix(tmp_path):

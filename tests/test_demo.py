@@ -85,7 +85,7 @@ def test_cli_errors(tmp_path, capsys):
     assert main(["demo", "--out", str(target)]) == 2
     assert "not a directory" in capsys.readouterr().err
     assert main(["demo", "--out", str(tmp_path / "d"), "--seed", "-1"]) == 2
-    assert "seed must be a non-negative integer" in capsys.readouterr().err
+    assert "argument --seed: -1 must lie in [0, 4294967295]" in capsys.readouterr().err
 
 
 @pytest.mark.slow

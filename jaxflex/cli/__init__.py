@@ -1,15 +1,20 @@
 """The ``jaxflex`` command: one sub-command per workflow stage, each in its own module.
 
 Each module in :data:`COMMANDS` defines ``register(subparsers)``, which adds its parser and
-sets ``func`` to the function that runs it. Errors a user can fix (bad files, bad values) are
-printed as one line ``jaxflex <command>: error: …`` with exit status 2, never a traceback.
+sets ``func`` to the function that runs it. Every command checks its inputs and all of its
+outputs before it computes anything (:mod:`jaxflex.cli._checks`); :func:`main` turns every
+error a user can meet — bad files or values, permissions, full disks, sizes — into one line
+``jaxflex <command>: error: …`` with exit status 2, never a traceback (``--debug`` shows one).
+Ctrl-C and SIGTERM stop with one line and exit status 130 and 143, leaving no partial file.
 """
 
 from __future__ import annotations
 
 import argparse
 import importlib
+import signal
 import sys
+import warnings
 from collections.abc import Sequence
 
 COMMANDS: tuple[str, ...] = (
@@ -21,16 +26,18 @@ COMMANDS: tuple[str, ...] = (
     "design",
     "demo",
 )
+EXIT_OK, EXIT_BUG, EXIT_USAGE, EXIT_INTERRUPTED, EXIT_TERMINATED = 0, 1, 2, 130, 143
 
 
 class UsageError(ValueError):
     """A problem with the command line or its input files that the user can fix."""
 
 
-def load_records(paths: Sequence[str], *, resample: bool):
-    """Records from files and directories; a missing or malformed file is a UsageError."""
+def load_records(paths: Sequence[str], *, resample: bool, unit_check: bool = True):
+    """Records from files and directories, each file once; problems are UsageErrors."""
     from pathlib import Path
 
+    from jaxflex._io import same_file
     from jaxflex.data import Dataset, RecordError, load_dataset, load_record
 
     records = []
@@ -40,18 +47,23 @@ def load_records(paths: Sequence[str], *, resample: bool):
             if not path.exists():
                 raise UsageError(f"{path}: record file not found")
             if path.is_dir():
-                records += list(load_dataset(path, resample=resample))
+                records += list(load_dataset(path, resample=resample, unit_check=unit_check))
             else:
-                records.append(load_record(path, resample=resample))
+                records.append(load_record(path, resample=resample, unit_check=unit_check))
+        for i, r in enumerate(records):
+            for earlier in records[:i]:
+                if same_file(r.source, earlier.source):
+                    raise UsageError(f"{r.source}: record file given twice")
         return Dataset(records)
-    except RecordError as exc:  # speak the command line's language
-        raise UsageError(str(exc).replace("resample=True", "--resample")) from None
+    except RecordError as exc:
+        raise UsageError(str(exc)) from None
 
 
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="jaxflex",
         description="Identify flexible-link manipulators by differentiable simulation.",
+        epilog="--debug (anywhere on the line) shows the traceback of an error.",
     )
     subparsers = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
     for name in COMMANDS:
@@ -65,15 +77,56 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
+class Terminated(BaseException):
+    """SIGTERM, raised as an exception so that ``finally`` blocks remove temporary files."""
+
+
 def main(argv: Sequence[str] | None = None) -> int:
+    from jaxflex.cli._errors import describe, one_line_warning
+
+    argv = list(sys.argv[1:] if argv is None else argv)
+    debug = "--debug" in argv
+    argv = [a for a in argv if a != "--debug"]
     parser = build_parser()
-    args = parser.parse_args(argv)
     try:
+        args = parser.parse_args(argv)
+    except SystemExit as exc:  # --help (0) or an option error, already printed (2)
+        return int(exc.code or 0)
+    prefix = f"jaxflex {args.command}"
+    restore = _on_sigterm()
+    format_warning = warnings.formatwarning
+    try:
+        warnings.formatwarning = one_line_warning(prefix)
         return int(args.func(args) or 0)
-    except (UsageError, ValueError, FileNotFoundError, FileExistsError, KeyError) as exc:
-        message = exc.args[0] if isinstance(exc, KeyError) and exc.args else exc
-        print(f"jaxflex {args.command}: error: {message}", file=sys.stderr)
-        return 2
+    except KeyboardInterrupt:
+        print(f"{prefix}: interrupted; no partial output was left", file=sys.stderr)
+        return EXIT_INTERRUPTED
+    except Terminated:
+        print(f"{prefix}: terminated; no partial output was left", file=sys.stderr)
+        return EXIT_TERMINATED
+    except Exception as exc:
+        if debug:
+            raise
+        message, status = describe(exc)
+        print(f"{prefix}: error: {message}", file=sys.stderr)
+        return status
+    finally:
+        warnings.formatwarning = format_warning
+        restore()
+
+
+def _on_sigterm():
+    """Raise :class:`Terminated` on SIGTERM (main thread only); returns the undo function."""
+    import threading
+
+    if threading.current_thread() is not threading.main_thread():
+        return lambda: None
+
+    def handler(signum, frame):
+        raise Terminated
+
+    previous = signal.signal(signal.SIGTERM, handler)
+    return lambda: signal.signal(signal.SIGTERM, previous)
 
 
 if __name__ == "__main__":

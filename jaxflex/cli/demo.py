@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import argparse
 
+from jaxflex.cli._checks import seed
+
 HELP = "run the demo on synthetic records: identify on one input, validate on the others"
 
 
@@ -15,7 +17,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         metavar="DIR",
         help="directory for records, fit, table and figures (default: %(default)s)",
     )
-    p.add_argument("--seed", type=int, default=0, help="seed of noise and search (default: 0)")
+    p.add_argument("--seed", type=seed, default=0, help="seed of noise and search (default: 0)")
     p.add_argument("--overwrite", action="store_true", help="replace files from an earlier run")
     p.set_defaults(func=run)
 

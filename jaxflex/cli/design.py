@@ -1,20 +1,33 @@
-"""``jaxflex design --max-torque T --rms-torque R --max-angle A --max-speed S --out input.csv``.
+"""``jaxflex design --max-torque T [--rms-torque R] --max-angle A --max-speed S --out input.csv``.
 
 Designs a Fourier-series torque that maximises the information about the parameters (see
 :mod:`jaxflex.design`), writes it as a record file (torque plus the model's predicted response,
 so that it is a valid spec CSV; a ``# note:`` line says the outputs are predictions) and
 optionally a figure, and prints the predicted 95 % intervals against the paper's triangular,
-pulse and half-sine inputs at the same RMS torque.
+pulse and half-sine inputs at the same RMS torque. ``--rms-torque`` defaults to
+:data:`DEFAULT_RMS_FRACTION` of ``--max-torque``: a multisine's peak is about twice its RMS.
 """
 
 from __future__ import annotations
 
 import argparse
-from pathlib import Path
+import math
 
-from jaxflex._io import check_writable
 from jaxflex.cli import UsageError
+from jaxflex.cli._checks import (
+    FIGURE_SUFFIXES,
+    RECORD_SUFFIXES,
+    add_max_samples,
+    check_outputs,
+    check_size,
+    max_samples,
+    positive_float,
+    positive_int,
+    seed,
+)
 
+DEFAULT_RMS_FRACTION = 0.5
+"""Default ``--rms-torque`` as a fraction of ``--max-torque``."""
 HELP = "design an excitation torque that maximises the information about the parameters"
 
 
@@ -22,26 +35,29 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p = subparsers.add_parser("design", help=HELP, description=HELP)
     p.add_argument(
         "--duration",
-        type=float,
+        type=positive_float,
         default=2.0,
         metavar="S",
         help="record length in seconds (default: %(default)s)",
     )
     p.add_argument(
-        "--max-torque", type=float, required=True, metavar="NM", help="peak torque limit (N m)"
+        "--max-torque", type=positive_float, required=True, metavar="NM",
+        help="peak torque limit (N m)",
     )
     p.add_argument(
         "--rms-torque",
-        type=float,
-        required=True,
+        type=positive_float,
         metavar="NM",
-        help="RMS torque budget (N m); the paper's inputs are compared at this RMS",
+        help="RMS torque budget (N m), at most --max-torque; the paper's inputs are compared at "
+        f"this RMS (default: {DEFAULT_RMS_FRACTION:g} x --max-torque)",
     )
     p.add_argument(
-        "--max-angle", type=float, required=True, metavar="RAD", help="joint angle range ±RAD"
+        "--max-angle", type=positive_float, required=True, metavar="RAD",
+        help="joint angle range ±RAD",
     )
     p.add_argument(
-        "--max-speed", type=float, required=True, metavar="RAD_S", help="joint speed limit (rad/s)"
+        "--max-speed", type=positive_float, required=True, metavar="RAD_S",
+        help="joint speed limit (rad/s)",
     )
     p.add_argument(
         "--criterion",
@@ -52,13 +68,13 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     )
     p.add_argument(
         "--harmonics",
-        type=int,
+        type=positive_int,
         metavar="N",
         help="harmonics of 1/duration (default: all up to --max-frequency)",
     )
     p.add_argument(
         "--max-frequency",
-        type=float,
+        type=positive_float,
         default=20.0,
         metavar="HZ",
         help="highest harmonic when --harmonics is not given (default: %(default)s)",
@@ -70,10 +86,10 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         metavar="K",
         help="ascent iterations (default: %(default)s)",
     )
-    p.add_argument("--seed", type=int, default=0, help="seed of the starting phases")
+    p.add_argument("--seed", type=seed, default=0, help="seed of the starting phases")
     p.add_argument(
         "--restarts",
-        type=int,
+        type=positive_int,
         default=1,
         metavar="R",
         help="random starts to try, keeping the best (default: %(default)s)",
@@ -90,28 +106,36 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         help="bar chart of the predicted intervals against the paper's inputs",
     )
     p.add_argument("--overwrite", action="store_true", help="replace existing output files")
+    add_max_samples(p)
     p.set_defaults(func=run)
 
 
 def run(args: argparse.Namespace) -> int:
+    from jaxflex._io import all_or_nothing
     from jaxflex.data import save_record
     from jaxflex.design import compare_inputs, design_input, interval_table, paper_inputs
+    from jaxflex.testbed import Testbed
 
-    outputs = [Path(p) for p in (args.out, args.plot, args.plot_intervals) if p]
-    if Path(args.out).suffix.lower() not in (".csv", ".npz"):
-        raise UsageError(f"{args.out}: the record file must end in .csv or .npz")
-    for plot in (args.plot, args.plot_intervals):
-        if plot and Path(plot).suffix.lower().lstrip(".") not in ("png", "pdf", "svg"):
-            raise UsageError(f"{plot}: a figure must end in .png, .pdf or .svg")
-    for path in outputs:  # refuse before minutes of work, not after
-        check_writable(path, args.overwrite)
-    if len(set(outputs)) != len(outputs):
-        raise UsageError("--out, --plot and --plot-intervals must name different files")
-
+    out, *plots = check_outputs(
+        [("--out", args.out, RECORD_SUFFIXES), ("--plot", args.plot, FIGURE_SUFFIXES),
+         ("--plot-intervals", args.plot_intervals, FIGURE_SUFFIXES)],
+        overwrite=args.overwrite,
+    )
+    rms_torque = args.rms_torque
+    if rms_torque is None:
+        rms_torque = DEFAULT_RMS_FRACTION * args.max_torque
+    elif rms_torque > args.max_torque:
+        raise UsageError(
+            f"--rms-torque {rms_torque:g} exceeds --max-torque {args.max_torque:g}; the RMS of "
+            "a torque cannot exceed its peak"
+        )
+    dt = Testbed().dt
+    check_size(args.duration / dt + 1, f"--duration {args.duration:g} s at {dt:g} s",
+               limit=max_samples(args.max_samples))
     result = design_input(
         duration=args.duration,
         max_torque=args.max_torque,
-        rms_torque=args.rms_torque,
+        rms_torque=rms_torque,
         max_angle=args.max_angle,
         max_speed=args.max_speed,
         criterion=args.criterion,
@@ -122,14 +146,31 @@ def run(args: argparse.Namespace) -> int:
         restarts=args.restarts,
         progress=True,
     )
+    unidentifiable = [n for n, v in result.intervals.items() if not math.isfinite(v)]
+    if unidentifiable:
+        raise UsageError(
+            f"the designed input leaves {unidentifiable} unidentifiable (infinite intervals) "
+            f"within --max-angle {args.max_angle:g} rad and --max-speed {args.max_speed:g} "
+            "rad/s; allow more motion; nothing was written"
+        )
     rms = result.achieved["rms_torque"]
     comparison = {"designed": {"intervals": result.intervals, "achieved": result.achieved}}
     comparison |= compare_inputs(
         paper_inputs(rms, duration=args.duration, dt=float(result.settings["dt"]))
     )
-    save_record(
-        result.to_record(Path(args.out).stem or "designed"), args.out, overwrite=args.overwrite
-    )
+    with all_or_nothing():
+        save_record(result.to_record(out.stem or "designed"), out, overwrite=args.overwrite)
+        if args.plot:
+            from jaxflex.plots._style import save_figure
+            from jaxflex.plots.design import plot_design
+
+            save_figure(plot_design(result), args.plot, overwrite=args.overwrite)
+        if args.plot_intervals:
+            from jaxflex.plots._style import save_figure
+            from jaxflex.plots.design import plot_intervals
+
+            fig = plot_intervals(comparison, history=result.history, criterion=result.criterion)
+            save_figure(fig, args.plot_intervals, overwrite=args.overwrite)
     print(
         f"criterion {result.criterion}: {result.history[0]:.4g} -> {result.history[-1]:.4g} "
         f"in {len(result.history) - 1} steps ({result.wall_time:.1f} s)"
@@ -140,18 +181,6 @@ def run(args: argparse.Namespace) -> int:
     )
     print(interval_table(comparison))
     print(f"paper inputs scaled to the designed input's RMS torque {rms:.4g} N m")
-    print(f"wrote {args.out}")
-    if args.plot:
-        from jaxflex.plots._style import save_figure
-        from jaxflex.plots.design import plot_design
-
-        save_figure(plot_design(result), args.plot, overwrite=args.overwrite)
-        print(f"wrote {args.plot}")
-    if args.plot_intervals:
-        from jaxflex.plots._style import save_figure
-        from jaxflex.plots.design import plot_intervals
-
-        fig = plot_intervals(comparison, history=result.history, criterion=result.criterion)
-        save_figure(fig, args.plot_intervals, overwrite=args.overwrite)
-        print(f"wrote {args.plot_intervals}")
+    for path in (out, *plots):
+        print(f"wrote {path}")
     return 0

@@ -8,7 +8,20 @@ import math
 import numpy as np
 
 from jaxflex.cli import UsageError
+from jaxflex.cli._checks import (
+    FIGURE_SUFFIXES,
+    RECORD_SUFFIXES,
+    add_max_samples,
+    check_outputs,
+    check_size,
+    max_samples,
+    positive_float,
+    seed,
+)
 from jaxflex.signals import INPUT_NAMES
+
+TIMING_SETTINGS = ("dt", "duration")
+"""Testbed settings that have their own options (--dt, --duration), not --set."""
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
@@ -31,10 +44,13 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     parser.add_argument(
         "--effects", default="", help="comma-separated physical effects to add (e.g. payload)"
     )
-    parser.add_argument("--duration", type=float, default=2.0, help="seconds (default 2.0)")
-    parser.add_argument("--dt", type=float, default=1e-3, help="sample step, s (default 1e-3)")
+    parser.add_argument("--duration", type=positive_float, default=2.0,
+                        help="seconds (default 2.0)")
+    parser.add_argument("--dt", type=positive_float, default=1e-3,
+                        help="sample step, s (default 1e-3)")
     parser.add_argument("--noise", action="store_true", help="add the testbed's sensor noise")
-    parser.add_argument("--seed", type=int, default=0, help="noise seed (default 0)")
+    parser.add_argument("--seed", type=seed, default=0, help="noise seed (default 0)")
+    add_max_samples(parser)
     parser.add_argument("--out", required=True, help="record CSV (or .npz) to write")
     parser.add_argument("--plot", help="figure of joint angle and tip acceleration (PNG/PDF)")
     parser.add_argument("--overwrite", action="store_true", help="replace existing files")
@@ -67,11 +83,14 @@ def build_model_and_params(assignments: dict[str, float], effects: str, dt: floa
 
     names = [e.strip() for e in effects.split(",") if e.strip()]
     model = Model(effects=tuple(get_effect(n) for n in names))
+    for name in TIMING_SETTINGS:
+        if name in assignments:
+            raise UsageError(f"--set {name}: use --{name} instead")
     settings = {k: v for k, v in assignments.items() if k in TESTBED_SETTINGS}
     params = {k: v for k, v in assignments.items() if k not in TESTBED_SETTINGS}
     unknown = sorted(set(params) - set(model.space.names))
     if unknown:
-        known = list(model.space.names) + list(TESTBED_SETTINGS)
+        known = list(model.space.names) + [s for s in TESTBED_SETTINGS if s not in TIMING_SETTINGS]
         raise UsageError(f"--set: unknown name(s) {unknown}; known names: {known}")
     if "n_elements" in settings:
         if settings["n_elements"] != int(settings["n_elements"]):
@@ -87,22 +106,22 @@ def build_model_and_params(assignments: dict[str, float], effects: str, dt: floa
 
 
 def run(args: argparse.Namespace) -> int:
-    from jaxflex._io import check_writable
+    from jaxflex._io import all_or_nothing
     from jaxflex.data import save_record
     from jaxflex.signals import reference_input
     from jaxflex.synthetic import add_measurement_noise, simulated_record
 
-    for label, value in (("--dt", args.dt), ("--duration", args.duration)):
-        if not (math.isfinite(value) and value > 0):
-            raise UsageError(f"{label} must be a positive number, got {value}")
     if args.duration < 2 * args.dt:
         raise UsageError(f"--duration {args.duration} s is shorter than two samples of {args.dt} s")
-    check_writable(args.out, args.overwrite)
-    if args.plot:
-        check_writable(args.plot, args.overwrite)
-    model, params = build_model_and_params(
-        parse_assignments(args.set), args.effects, args.dt, args.duration
+    out, *plot = check_outputs(
+        [("--out", args.out, RECORD_SUFFIXES), ("--plot", args.plot, FIGURE_SUFFIXES)],
+        overwrite=args.overwrite,
     )
+    assignments = parse_assignments(args.set)
+    n_elements = assignments.get("n_elements", 10)
+    check_size(args.duration / args.dt + 1, f"--duration {args.duration:g} s at --dt {args.dt:g} s",
+               n_elements=int(n_elements), limit=max_samples(args.max_samples))
+    model, params = build_model_and_params(assignments, args.effects, args.dt, args.duration)
     time, torque = reference_input(args.input, args.amplitude, args.duration, args.dt)
     metadata = {
         "generator": "jaxflex simulate",
@@ -117,15 +136,18 @@ def run(args: argparse.Namespace) -> int:
     )
     if args.noise:
         record = add_measurement_noise(record, args.seed)
-    path = save_record(record, args.out, overwrite=args.overwrite)
+    with all_or_nothing():
+        save_record(record, out, overwrite=args.overwrite)
+        if plot:
+            from jaxflex.plots._style import save_figure
+            from jaxflex.plots.simulate import plot_record
+
+            save_figure(plot_record(record), plot[0], overwrite=args.overwrite)
     print(
-        f"wrote {path}: {record.n_samples} samples, final joint angle "
+        f"wrote {out}: {record.n_samples} samples, final joint angle "
         f"{np.degrees(record.joint_angle[-1]):.2f} deg, peak |tip acceleration| "
         f"{np.max(np.abs(record.tip_acceleration)):.3g} m/s^2"
     )
-    if args.plot:
-        from jaxflex.plots._style import save_figure
-        from jaxflex.plots.simulate import plot_record
-
-        print(f"wrote {save_figure(plot_record(record), args.plot, overwrite=args.overwrite)}")
+    for path in plot:
+        print(f"wrote {path}")
     return 0

@@ -10,13 +10,12 @@ from __future__ import annotations
 import argparse
 
 from jaxflex.cli import UsageError, load_records
-from jaxflex.cli.identify import (
-    _check_figure,
-    add_search_arguments,
-    model_from,
-    search_options,
-)
+from jaxflex.cli._checks import FIGURE_SUFFIXES, JSON_SUFFIXES, MAX_SEED, check_outputs
+from jaxflex.cli._options import fit_keywords, model_from
+from jaxflex.cli.identify import add_search_arguments, check_finite_cost, sources
 
+MAX_SEEDS = 1000
+"""More seeds than this is a typing error (``0-1000000``), not a study."""
 HELP = "run each evolutionary method from several seeds and tabulate the spread (paper study)"
 
 
@@ -44,21 +43,42 @@ def parse_seeds(text: str) -> list[int]:
             raise UsageError(f"--seeds {text!r}: expected e.g. 0-9 or 0,3,7") from None
         if sep and int(hi) < int(lo):
             raise UsageError(f"--seeds {part!r}: the range runs backwards")
+        if len(seeds) + len(values) > MAX_SEEDS:
+            raise UsageError(f"--seeds {text!r}: more than {MAX_SEEDS} seeds")
         seeds.extend(values)
-    if any(s < 0 for s in seeds) or len(set(seeds)) != len(seeds):
-        raise UsageError(f"--seeds {text!r}: seeds must be distinct and >= 0")
+    if any(not 0 <= s <= MAX_SEED for s in seeds) or len(set(seeds)) != len(seeds):
+        raise UsageError(f"--seeds {text!r}: seeds must be distinct and in [0, {MAX_SEED}]")
     return seeds
 
 
+def parse_methods(text: str) -> list[str]:
+    """``"de,ga"`` → ``["de", "ga"]``; unknown or repeated methods are refused."""
+    from jaxflex.identify import METHODS
+
+    methods = [m.strip().lower() for m in text.split(",") if m.strip()]
+    if not methods:
+        raise UsageError(f"--methods {text!r}: name at least one of {', '.join(METHODS)}")
+    for i, m in enumerate(methods):
+        if m not in METHODS:
+            raise UsageError(f"--methods: unknown method {m!r}; choose from {', '.join(METHODS)}")
+        if m in methods[:i]:
+            raise UsageError(f"--methods {text!r}: {m!r} given twice; each run would count twice")
+    return methods
+
+
 def run(args: argparse.Namespace) -> int:
-    from jaxflex._io import check_writable
+    from jaxflex._io import all_or_nothing
+    from jaxflex.identify import identify
     from jaxflex.study import run_study
 
-    out = check_writable(args.out, args.overwrite)
-    plot = None if args.plot is None else _check_figure(args.plot, args.overwrite)
-    methods = [m.strip() for m in args.methods.split(",") if m.strip()]
+    methods = parse_methods(args.methods)
     seeds = parse_seeds(args.seeds)
-    records = load_records(args.data, resample=args.resample)
+    records = load_records(args.data, resample=args.resample, unit_check=args.unit_check)
+    out, *plot = check_outputs(
+        [("--out", args.out, JSON_SUFFIXES), ("--plot", args.plot, FIGURE_SUFFIXES)],
+        overwrite=args.overwrite, inputs=sources(records),
+    )
+    keywords = fit_keywords(args, identify)
     study = run_study(
         records,
         methods,
@@ -68,15 +88,18 @@ def run(args: argparse.Namespace) -> int:
         population=args.population,
         refine=args.refine,
         progress=not args.quiet,
-        **search_options(args),
+        **keywords,
     )
+    for r in study.runs:
+        check_finite_cost(r.cost, "bounds" in keywords)
     print(study.table(), end="")
-    study.to_json(out, overwrite=args.overwrite)
-    print(f"wrote {out}")
-    if plot is not None:
-        from jaxflex.plots._style import save_figure
-        from jaxflex.plots.identify import plot_convergence
+    with all_or_nothing():
+        study.to_json(out, overwrite=args.overwrite)
+        if plot:
+            from jaxflex.plots._style import save_figure
+            from jaxflex.plots.identify import plot_convergence
 
-        save_figure(plot_convergence(study.histories()), plot, overwrite=args.overwrite)
-        print(f"wrote {plot}")
+            save_figure(plot_convergence(study.histories()), plot[0], overwrite=args.overwrite)
+    for path in (out, *plot):
+        print(f"wrote {path}")
     return 0

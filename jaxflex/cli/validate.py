@@ -8,9 +8,20 @@ Simulates the fitted model under each record's measured torque, prints the Table
 from __future__ import annotations
 
 import argparse
-from pathlib import Path
 
 from jaxflex.cli import UsageError, load_records
+from jaxflex.cli._checks import (
+    add_max_samples,
+    check_directory,
+    check_outputs,
+    check_size,
+    max_samples,
+    positive_float,
+    positive_int,
+    read_fit,
+)
+from jaxflex.cli._options import add_record_options
+from jaxflex.cli.identify import sources
 from jaxflex.compare import DEFAULT_T_END, FRFSettings, compare
 
 HELP = "compare a fitted model with measured records: metrics table and figures"
@@ -34,19 +45,18 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         default="png",
         help="figure file format (default: png)",
     )
-    p.add_argument(
-        "--resample", action="store_true", help="resample records whose time column is not uniform"
-    )
+    add_record_options(p)
+    add_max_samples(p)
     p.add_argument(
         "--t-end",
-        type=float,
+        type=positive_float,
         default=DEFAULT_T_END,
         metavar="S",
         help="time-domain metrics over 0 <= t <= S seconds (default: %(default)s)",
     )
     p.add_argument(
         "--f-max",
-        type=float,
+        type=positive_float,
         default=15.0,
         metavar="HZ",
         help="upper end of the FRF comparison band (default: %(default)s Hz)",
@@ -59,13 +69,13 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     )
     p.add_argument(
         "--encoder-counts",
-        type=int,
+        type=positive_int,
         metavar="N",
         help="encoder counts per revolution, to report the noise floor",
     )
     p.add_argument(
         "--accel-sigma",
-        type=float,
+        type=positive_float,
         metavar="S",
         help="accelerometer noise standard deviation (m/s^2), for the noise floor",
     )
@@ -73,14 +83,32 @@ def register(subparsers: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    fit, model = _load_fit(Path(args.fit))
-    records = load_records(args.data, resample=args.resample)
+    from jaxflex._io import all_or_nothing
+
+    model, params, fit = read_fit("--fit", args.fit)
+    records = load_records(args.data, resample=args.resample, unit_check=args.unit_check)
+    check_size(sum(r.n_samples for r in records), f"{len(records)} record(s)",
+               n_elements=model.testbed.n_elements, limit=max_samples(args.max_samples))
+    nyquist = 0.5 / records.dt
+    if args.f_max > nyquist:
+        raise UsageError(
+            f"--f-max {args.f_max:g} Hz is above the records' Nyquist frequency {nyquist:g} Hz "
+            f"(sampled every {records.dt:g} s); give at most --f-max {nyquist:g}"
+        )
+    targets = []
+    if args.report:
+        from jaxflex.plots.compare import report_paths
+
+        directory = check_directory("--report", args.report)
+        targets = [("--report", p, None) for p in report_paths(records.names, directory,
+                                                                args.format)]
+    check_outputs(targets, overwrite=args.overwrite, inputs=[*sources(records), args.fit])
     frf = FRFSettings(
         f_max=args.f_max, **({"min_input_db": None, "min_coherence": None} if args.raw_frf else {})
     )
     comparison = compare(
         model,
-        fit.params,
+        params,
         records,
         fit_names=[n for n in fit.record_names if n in records.names],
         t_end=args.t_end,
@@ -92,23 +120,8 @@ def run(args: argparse.Namespace) -> int:
     if args.report:
         from jaxflex.plots.compare import save_report
 
-        paths = save_report(comparison, args.report, overwrite=args.overwrite, fmt=args.format)
+        with all_or_nothing():
+            paths = save_report(comparison, args.report, overwrite=args.overwrite,
+                                fmt=args.format)
         print(f"wrote {len(paths)} files to {args.report}: {', '.join(p.name for p in paths)}")
     return 0
-
-
-def _load_fit(path: Path):
-    """The fit in ``path`` and its model, or a UsageError that says what is wrong with them."""
-    if not path.is_file():
-        raise UsageError(f"{path}: fit file not found (write one with `jaxflex identify`)")
-    from jaxflex.identify import load_fit
-
-    try:
-        fit = load_fit(path)
-        model = fit.model()  # unknown effects or testbed settings fail here
-        model.space.validate(fit.params)  # unknown or missing parameters fail here
-    except (ValueError, KeyError, TypeError) as exc:
-        message = str(exc.args[0] if isinstance(exc, KeyError) and exc.args else exc)
-        where = "" if message.startswith(str(path)) else f"{path}: "
-        raise UsageError(f"cannot use the fit: {where}{message}") from None
-    return fit, model

@@ -1,0 +1,120 @@
+"""The fitting options shared by ``identify``, ``study`` and ``discover``, defined once.
+
+``--effect NAME`` adds a physical effect to the model; ``--bound NAME=LO:HI``, ``--fix
+NAME=VALUE`` and ``--weight CHANNEL=W`` become the ``bounds``, ``fixed`` and ``weights``
+keywords of :func:`jaxflex.identify.identify`. Each repeatable ``NAME=VALUE`` option is one row
+of :data:`PAIR_OPTIONS` (option, keyword, metavar, help, value parser): adding one (e.g.
+``--noise CHANNEL=SIGMA`` → ``noise``) is one row. :func:`fit_keywords` passes on only the
+keywords the called function accepts, and refuses an option given to a function without it.
+"""
+
+from __future__ import annotations
+
+import argparse
+import inspect
+import math
+from collections.abc import Callable
+from typing import Any
+
+from jaxflex.cli import UsageError
+
+
+def _number(text: str, label: str) -> float:
+    try:
+        value = float(text)
+    except ValueError:
+        raise UsageError(f"{label}: {text!r} is not a number") from None
+    if not math.isfinite(value):
+        raise UsageError(f"{label}: {text!r} must be finite")
+    return value
+
+
+def _interval(text: str, label: str) -> tuple[float, float]:
+    lo, sep, hi = text.partition(":")
+    if not sep:
+        raise UsageError(f"{label}={text!r}: expected LO:HI")
+    low, high = _number(lo, label), _number(hi, label)
+    if not low < high:
+        raise UsageError(f"{label}={text}: lower bound {low!r} must be below upper {high!r}")
+    decades = math.log10(high) - math.log10(low) if low > 0 else 0.0
+    if decades > MAX_BOUND_DECADES:
+        raise UsageError(
+            f"{label}={text}: spans {decades:.0f} decades; a search box wider "
+            f"than {MAX_BOUND_DECADES} decades leaves the simulation's range; narrow it"
+        )
+    return low, high
+
+
+MAX_BOUND_DECADES = 12
+"""Widest ``--bound`` (upper/lower) accepted: beyond it candidates overflow the simulation."""
+
+
+PAIR_OPTIONS: tuple[tuple[str, str, str, str, Callable[[str, str], Any]], ...] = (
+    ("--bound", "bounds", "NAME=LO:HI",
+     "search bounds of a parameter (repeatable), e.g. J_h=1e-3:1e-2", _interval),
+    ("--fix", "fixed", "NAME=VALUE", "hold a parameter at a value (repeatable)", _number),
+    ("--weight", "weights", "CHANNEL=W",
+     "weight of an output channel (repeatable; default 1 each)", _number),
+)
+
+
+def add_fit_options(p: argparse.ArgumentParser) -> None:
+    """``--effect`` and the :data:`PAIR_OPTIONS` on a command's parser."""
+    p.add_argument("--effect", action="append", default=[], metavar="NAME",
+                   help="add a physical effect to the model (repeatable), e.g. payload")
+    for option, keyword, metavar, text, _ in PAIR_OPTIONS:
+        p.add_argument(option, dest=f"pairs_{keyword}", action="append", default=[],
+                       metavar=metavar, help=text)
+
+
+def model_from(effects: list[str]):
+    """The reference model with the named effects added."""
+    from jaxflex.effects import get_effect
+    from jaxflex.model import Model
+
+    return Model().with_effects(*(get_effect(name) for name in effects))
+
+
+def pair_values(args: argparse.Namespace) -> dict[str, dict[str, Any]]:
+    """``{keyword: {name: value}}`` for every pair option given (empty ones left out)."""
+    out: dict[str, dict[str, Any]] = {}
+    for option, keyword, metavar, _, parse in PAIR_OPTIONS:
+        values: dict[str, Any] = {}
+        for item in getattr(args, f"pairs_{keyword}"):
+            name, sep, text = (s.strip() for s in item.partition("="))
+            if not sep or not name or not text:
+                raise UsageError(f"{option} {item!r}: expected {metavar}")
+            if name in values:
+                raise UsageError(f"{option}: {name!r} given twice")
+            values[name] = parse(text, f"{option} {name}")
+        if values:
+            out[keyword] = values
+    return out
+
+
+def fit_keywords(args: argparse.Namespace, function: Callable) -> dict[str, Any]:
+    """The keywords of ``function`` given by the fitting options; an option the function does
+    not take is refused by name."""
+    accepted = inspect.signature(function).parameters
+    keywords = pair_values(args)
+    for option, keyword, *_ in PAIR_OPTIONS:
+        if keyword in keywords and keyword not in accepted:
+            raise UsageError(f"{option} is not supported by this command yet")
+    return {k: v for k, v in keywords.items() if k in accepted}
+
+
+
+
+def add_record_options(p: argparse.ArgumentParser) -> None:
+    """How records are read: ``--resample`` and ``--no-unit-check``."""
+    p.add_argument("--resample", action="store_true",
+                   help="resample records whose time column is not uniform")
+    p.add_argument("--no-unit-check", dest="unit_check", action="store_false",
+                   help="load records whose units look wrong (time in ms, angle in degrees, "
+                        "torque scale) instead of stopping")
+
+
+__all__ = [
+    "PAIR_OPTIONS", "add_fit_options", "add_record_options", "fit_keywords", "model_from",
+    "pair_values",
+]
