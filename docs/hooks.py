@@ -1,4 +1,5 @@
-"""MkDocs hook: the API reference must document every public name.
+"""MkDocs hooks: the API reference must document every public name; the command-line page
+shows each command's ``--help``, generated from the parser so that it never goes stale.
 
 A public name is one listed in ``__all__`` of ``jaxflex`` or of any public module or subpackage
 (or, for a module without ``__all__``, any name it defines without a leading underscore). Each
@@ -8,9 +9,11 @@ missing one is a warning, so ``mkdocs build --strict`` fails.
 
 from __future__ import annotations
 
+import argparse
 import importlib
 import inspect
 import logging
+import os
 import pkgutil
 import re
 import sys
@@ -19,6 +22,8 @@ from pathlib import Path
 log = logging.getLogger("mkdocs.hooks.api_coverage")
 BLOCK = re.compile(r"^:::\s+([\w.]+)", re.M)
 NOT_API = ("jaxflex.cli",)  # the command line has its own page
+COMMANDS_MARKER = "<!-- commands -->"
+HELP_WIDTH = "100"
 
 
 def on_config(config):
@@ -65,3 +70,24 @@ def _public(module) -> dict[str, object]:
         and not inspect.ismodule(obj)
         and getattr(obj, "__module__", module.__name__) == module.__name__
     }
+
+
+def on_page_markdown(markdown, page, config, files):
+    if COMMANDS_MARKER not in markdown:
+        return markdown
+    from jaxflex.cli import build_parser
+
+    sub = next(a for a in build_parser()._actions if isinstance(a, argparse._SubParsersAction))
+    columns = os.environ.get("COLUMNS")
+    os.environ["COLUMNS"] = HELP_WIDTH  # argparse wraps to the terminal width
+    try:
+        sections = [
+            f"## `jaxflex {name}`\n\n```text\n{parser.format_help()}```\n"
+            for name, parser in sub.choices.items()
+        ]
+    finally:
+        if columns is None:
+            del os.environ["COLUMNS"]
+        else:
+            os.environ["COLUMNS"] = columns
+    return markdown.replace(COMMANDS_MARKER, "\n".join(sections))
