@@ -38,8 +38,9 @@ test: $(VENV)/.stamp-dev lint docs
 
 # Strict: any warning (an unresolved reference, a docstring mkdocstrings cannot read, a page
 # missing from the navigation, a public name missing from the API reference) fails the build.
+# Not --quiet: it hides the warnings from strict mode's count, and the build would pass.
 docs: $(VENV)/.stamp-dev
-	NO_MKDOCS_2_WARNING=1 $(VENV)/bin/mkdocs build --strict --quiet
+	NO_MKDOCS_2_WARNING=1 $(VENV)/bin/mkdocs build --strict
 
 # Executes every notebook in place with the test suite's environment (full budgets), so that
 # they are committed with their outputs and figures.

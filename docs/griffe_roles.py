@@ -1,4 +1,5 @@
-"""Griffe extension: the docstrings' reST roles (``:func:`x```) as Markdown for mkdocstrings.
+"""Griffe extension: the docstrings' reST roles (``:func:`x```) as Markdown for mkdocstrings,
+and ``#:`` comments above a module constant as its docstring (the Sphinx convention).
 
 jaxflex's docstrings name other objects with Sphinx roles, which Markdown would show verbatim.
 A role whose target is a jaxflex object the API reference renders becomes a cross-reference to
@@ -27,6 +28,10 @@ class RestRoles(griffe.Extension):
 
     def on_package(self, *, pkg: griffe.Module, **kwargs: object) -> None:
         for obj in _walk(pkg):
+            if obj.is_attribute and obj.docstring is None and obj.parent.is_module:
+                comment = _comment_docstring(obj)
+                if comment:
+                    obj.docstring = griffe.Docstring(comment, parent=obj)
             if obj.name.startswith("__") and obj.name.endswith("__") and obj.parent is not None:
                 if obj.parent.is_class and obj.name not in SHOWN_SPECIAL:
                     obj.public = False
@@ -34,6 +39,17 @@ class RestRoles(griffe.Extension):
                 obj.docstring.value = ROLE.sub(
                     lambda m, obj=obj: _reference(obj, pkg, m.group(1)), obj.docstring.value
                 )
+
+
+def _comment_docstring(obj: griffe.Object) -> str:
+    """The ``#:`` comment lines right above ``obj``'s assignment, joined."""
+    lines = obj.parent.lines
+    text: list[str] = []
+    row = obj.lineno - 2  # the line above, 0-based
+    while row >= 0 and lines[row].strip().startswith("#:"):
+        text.insert(0, lines[row].strip()[2:].strip())
+        row -= 1
+    return " ".join(text)
 
 
 def _walk(obj: griffe.Object):

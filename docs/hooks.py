@@ -1,4 +1,6 @@
-"""MkDocs hook: the API reference must document every public name.
+"""MkDocs hooks: the API reference must document every public name, its overview table is
+generated from ``jaxflex.__all__``, and the command-line page shows each command's ``--help``
+(generated from the parser, so that neither goes stale).
 
 A public name is one listed in ``__all__`` of ``jaxflex`` or of any public module or subpackage
 (or, for a module without ``__all__``, any name it defines without a leading underscore). Each
@@ -8,60 +10,134 @@ missing one is a warning, so ``mkdocs build --strict`` fails.
 
 from __future__ import annotations
 
-import importlib
-import inspect
+import argparse
 import logging
-import pkgutil
+import os
 import re
 import sys
 from pathlib import Path
 
-log = logging.getLogger("mkdocs.hooks.api_coverage")
+import griffe
+
+log = logging.getLogger("mkdocs.hooks.jaxflex")
 BLOCK = re.compile(r"^:::\s+([\w.]+)", re.M)
-NOT_API = ("jaxflex.cli",)  # the command line has its own page
+NOT_API = "jaxflex.cli"  # the command line has its own page
+OVERVIEW_MARKER = "<!-- jaxflex.__all__ -->"
+COMMANDS_MARKER = "<!-- commands -->"
+HELP_WIDTH = "100"
+
+_package: griffe.Module | None = None
 
 
 def on_config(config):
-    sys.path.insert(0, str(Path(config.config_file_path).parent))  # the tree being documented
-    documented = set()
+    global _package
+    root = Path(config.config_file_path).parent
+    sys.path.insert(0, str(root))  # the tree being documented
+    _package = griffe.load(
+        "jaxflex",
+        search_paths=[str(root)],
+        extensions=griffe.load_extensions(str(root / "docs" / "griffe_roles.py")),
+    )
+    rendered: set[str] = set()
     for page in sorted(Path(config["docs_dir"], "api").glob("*.md")):
-        documented.update(BLOCK.findall(page.read_text(encoding="utf-8")))
-    rendered: set[int] = set()
-    for path in documented:
-        try:
-            rendered.update(id(obj) for obj in _public(importlib.import_module(path)).values())
-        except ModuleNotFoundError:  # one object: module.name
-            module, _, name = path.rpartition(".")
-            rendered.add(id(getattr(importlib.import_module(module), name)))
-    for module in _public_modules():
-        missing = [n for n, obj in _public(module).items() if id(obj) not in rendered]
+        for path in BLOCK.findall(page.read_text(encoding="utf-8")):
+            obj = _package[path.removeprefix("jaxflex.")] if path != "jaxflex" else _package
+            rendered.add(_canonical(obj))
+            if obj.is_module:
+                rendered.update(_canonical(m) for m in _public_members(obj))
+    for module in _public_modules(_package):
+        missing = [m.name for m in _public_members(module) if _canonical(m) not in rendered]
         if missing:
             log.warning(
-                f"API reference: {module.__name__} names {missing} that no ::: block in "
-                "docs/api/ renders"
+                f"API reference: {module.path} names {missing} that no ::: block in docs/api/ "
+                "renders"
             )
     return config
 
 
-def _public_modules():
-    package = importlib.import_module("jaxflex")
-    yield package
-    for info in pkgutil.walk_packages(package.__path__, "jaxflex."):
-        parts = info.name.split(".")
-        if any(p.startswith("_") for p in parts) or info.name.startswith(NOT_API):
+def on_page_markdown(markdown, page, config, files):
+    if OVERVIEW_MARKER in markdown:
+        markdown = markdown.replace(OVERVIEW_MARKER, _overview())
+    if COMMANDS_MARKER in markdown:
+        markdown = markdown.replace(COMMANDS_MARKER, _commands())
+    return markdown
+
+
+def _overview() -> str:
+    """A table of ``jaxflex.__all__``: name (linked), defining module, docstring summary."""
+    rows = ["| name | defined in | what it is |", "|---|---|---|"]
+    for member in _public_members(_package):
+        target = _public_path(member)
+        docstring = member.final_target.docstring if member.is_alias else member.docstring
+        summary = docstring.value.split("\n\n")[0].replace("\n", " ") if docstring else ""
+        summary = summary.replace("|", r"\|")
+        module = target.rpartition(".")[0]
+        rows.append(f"| [`{member.name}`][{target}] | `{module}` | {summary} |")
+    return "\n".join(rows) + "\n"
+
+
+def _commands() -> str:
+    """Each command's ``--help`` under its own heading."""
+    from jaxflex.cli import build_parser
+
+    sub = next(a for a in build_parser()._actions if isinstance(a, argparse._SubParsersAction))
+    columns = os.environ.get("COLUMNS")
+    os.environ["COLUMNS"] = HELP_WIDTH  # argparse wraps to the terminal width
+    try:
+        sections = [
+            f"## `jaxflex {name}`\n\n```text\n{parser.format_help()}```\n"
+            for name, parser in sub.choices.items()
+        ]
+    finally:
+        if columns is None:
+            del os.environ["COLUMNS"]
+        else:
+            os.environ["COLUMNS"] = columns
+    return "\n".join(sections)
+
+
+def _public_modules(module: griffe.Module):
+    yield module
+    for member in module.modules.values():
+        if not member.name.startswith("_") and not member.path.startswith(NOT_API):
+            yield from _public_modules(member)
+
+
+def _public_members(module: griffe.Module) -> list[griffe.Object | griffe.Alias]:
+    """What mkdocstrings renders for ``module`` (``filters: public``): ``__all__`` if the
+    module has one, else the public names it defines (not its imports, not submodules).
+
+    A name of ``__all__`` that griffe sees as a submodule is the function the package
+    re-exports under its module's name (``jaxflex.simulate`` → ``jaxflex.simulate.simulate``).
+    """
+    exports = _export_names(module)
+    members = []
+    for member in module.members.values():
+        if not member.is_public:
             continue
-        yield importlib.import_module(info.name)
+        if member.is_module:
+            if member.name in exports and member.name in member.members:
+                members.append(member.members[member.name])
+            continue
+        members.append(member)
+    order = {name: i for i, name in enumerate(exports)}
+    return sorted(members, key=lambda m: order.get(m.name, len(order)))
 
 
-def _public(module) -> dict[str, object]:
-    """The names a reader of ``module`` may use: ``__all__``, else its own public definitions."""
-    names = getattr(module, "__all__", None)
-    if names is not None:
-        return {n: getattr(module, n) for n in names}
-    return {
-        n: obj
-        for n, obj in list(vars(module).items())
-        if not n.startswith("_")
-        and not inspect.ismodule(obj)
-        and getattr(obj, "__module__", module.__name__) == module.__name__
-    }
+def _export_names(module: griffe.Module) -> list[str]:
+    return [e if isinstance(e, str) else e.name for e in module.exports or ()]
+
+
+def _public_path(obj: griffe.Object | griffe.Alias) -> str:
+    """The last path along ``obj``'s chain of imports that has no private part: where the
+    reference renders it (``jaxflex.Effect`` → ``jaxflex.effects.Effect``, not ``._base``)."""
+    public = obj.path
+    while obj.is_alias:
+        obj = obj.target
+        if not any(part.startswith("_") for part in obj.path.split(".")):
+            public = obj.path
+    return public
+
+
+def _canonical(obj: griffe.Object | griffe.Alias) -> str:
+    return obj.final_target.path if obj.is_alias else obj.path

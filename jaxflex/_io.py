@@ -275,7 +275,8 @@ def provenance() -> dict[str, Any]:
     from importlib import metadata
 
     versions = {}
-    for package in ("jaxflex", "jax", "jaxlib", "equinox", "optimistix", "jaxopt", "numpy"):
+    packages = ("jaxflex", "jax", "jaxlib", "equinox", "optimistix", "jaxopt", "numpy", "scipy")
+    for package in packages:
         try:
             versions[package] = metadata.version(package)
         except metadata.PackageNotFoundError:

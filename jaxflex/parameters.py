@@ -96,6 +96,7 @@ BASE_PARAMETERS: tuple[ParameterSpec, ...] = (
     ParameterSpec("alpha", "1/s", 1e-3, 4.0, 1.8240, "Rayleigh damping, mass-proportional"),
     ParameterSpec("beta", "s", 1e-7, 2e-4, 7.6275e-5, "Rayleigh damping, stiffness-proportional"),
 )
+"""The six identified parameters of the reference testbed: the paper's bounds and values."""
 
 
 class ParameterSpace:
