@@ -231,6 +231,17 @@ def test_clean_records_have_no_significant_candidate():
     assert {r.effect for r in ranking} == {c.name for c in candidate_set()}
 
 
+def test_given_noise_levels_are_used_and_the_rest_estimated(payload_case):
+    records, _, _ = payload_case
+    fit = refit(Model(), START, records, noise={"joint_angle": 1e-3})
+    assert fit.noise["joint_angle"] == NoiseLevel(1e-3) and fit.noise["joint_angle"].describe() == (
+        "given")
+    assert fit.noise["tip_acceleration"].source == "estimated"
+    assert fit.noise["tip_acceleration"].sigma == pytest.approx(ACCELEROMETER_SIGMA, rel=0.1)
+    with pytest.raises(ValueError, match=r"^noise given for unknown channel 'torque'"):
+        refit(Model(), START, records, noise={"torque": 1.0})
+
+
 def test_add_effect_recovers_the_payload(payload_case):
     records, _, _ = payload_case
     base = DiscoveryFit(Model(), dict(START), math.nan, 6, 0, NOISE)

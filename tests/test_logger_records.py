@@ -122,6 +122,11 @@ def check_clean(report, floor, logger: Logger) -> None:
     angle = report.noise["joint_angle"]
     assert angle.source == "quantisation", report.table()
     assert angle.step == pytest.approx(logger.step, rel=1e-6)
+    assert f"noise level joint_angle: σ = {angle.sigma:.4g} rad (quantisation step q=" in (
+        report.table())
+    obtained = report.to_dict()["settings"]["noise"]
+    assert obtained["joint_angle"]["source"] == "quantisation"
+    assert obtained["tip_acceleration"]["obtained"] == "white, estimated"
     for c in CHANNELS:
         assert report.final.nrmse[c] <= FLOOR_FACTOR * floor[c], (c, floor, report.table())
 
