@@ -975,6 +975,8 @@ class Diagnosis:
                 f"{c.channel}: NRMSE {c.nrmse:.3g} % (noise floor {c.noise_floor_nrmse:.3g} %), "
                 f"{white}: {status}"
             )
+            lines.append(f"  noise level σ = {c.noise.sigma:.4g} {UNITS.get(c.channel, '')} "
+                         f"({c.noise.describe()})")
             if ok:
                 continue
             xc = c.input_correlation
