@@ -171,10 +171,13 @@ def test_payload_logger_matrix(tmp_path, logger):
     run_payload(tmp_path, logger)
 
 
+def test_clean_radau_records_add_nothing(tmp_path):
+    run_clean(tmp_path, DEFAULT_CLEAN, radau_outputs)
+
+
 @pytest.mark.slow
-@pytest.mark.parametrize("logger", [MATRIX[0], MATRIX[4]], ids=str)
-def test_radau_records_clean(tmp_path, logger):
-    run_clean(tmp_path, logger, radau_outputs)
+def test_clean_radau_float32_records_add_nothing(tmp_path):
+    run_clean(tmp_path, MATRIX[4], radau_outputs)
 
 
 @pytest.mark.slow
