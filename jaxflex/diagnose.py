@@ -66,7 +66,8 @@ measured values, estimated from the residuals as white noise, or the signal's re
 GRID_TOLERANCE = 3.0
 """A value lies on a quantisation grid if within this many times its own writing error of it."""
 GRID_MARGIN = 32.0
-"""A grid is only recognised with a step this many times the largest writing error or more."""
+"""A grid is only recognised with a step of this many typical (median) writing errors or more,
+and from gaps between values this many times their own writing errors."""
 HELD_FRACTION = 0.2
 """A signal that repeats its previous sample this often is held (a staircase): white-noise
 estimates from its second differences collapse, so its jump size sets the floor."""
@@ -105,7 +106,7 @@ class NoiseLevel:
 
     def describe(self) -> str:
         """How the level was obtained, for reports: ``"given"``, ``"quantisation step q=…"``,
-        ``"white, estimated"`` or ``"floor (…)"``."""
+        ``"white, estimated"`` or ``"floor: …"``."""
         if self.source == "quantisation":
             return f"quantisation step q={self.step:.6g}"
         if self.source == "estimated":
@@ -194,12 +195,12 @@ def quantisation_step(signal: ArrayLike) -> float | None:
     offset. The candidate step is the smallest gap between distinct values well above their
     writing errors, or a divisor of it up to 4 when the signal skips counts; step and offset are
     then fitted to the counts (weighted least squares) and every value must lie within
-    :data:`GRID_TOLERANCE` writing errors of the grid. A step that is not :data:`GRID_MARGIN`
-    times the largest writing error cannot be told from the writing itself: ``None``.
+    :data:`GRID_TOLERANCE` writing errors of the grid. A step below :data:`GRID_MARGIN` typical
+    writing errors cannot be told from the writing itself: ``None``.
     """
     x = np.asarray(signal, dtype=np.float64).ravel()
     x = x[np.isfinite(x)]
-    values, index = np.unique(x, return_index=True)
+    values = np.unique(x)
     if values.size < 3:
         return None
     error = writing_error(values)
@@ -227,9 +228,9 @@ def _fit_grid(values: np.ndarray, error: np.ndarray, step: float, step_error: fl
     """The step of the grid through ``values`` near ``step``, or ``None`` if they are off it.
 
     The counts ``k`` of a rough step (error ``δq``) are only right while ``k·δq`` stays well
-    below a step, so
-    step and offset are fitted (weighted least squares of the small off-grid parts) over the
-    values near the first, then over four times as many counts with the refined step, and so on.
+    below a step, so step and offset are fitted (weighted least squares of the small off-grid
+    parts) over the values near the first, then over four times as many counts with the refined
+    step, and so on until every value is covered.
     """
     reach = max(2.0, 0.1 * step / step_error)
     while True:
@@ -965,6 +966,8 @@ class Diagnosis:
                 f"{c.channel}: NRMSE {c.nrmse:.3g} % (noise floor {c.noise_floor_nrmse:.3g} %), "
                 f"{white}: {status}"
             )
+            lines.append(f"  noise level σ = {c.noise.sigma:.4g} {UNITS.get(c.channel, '')} "
+                         f"({c.noise.describe()})")
             if ok:
                 continue
             xc = c.input_correlation

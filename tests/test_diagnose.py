@@ -268,6 +268,9 @@ def test_wrong_stiffness_is_located_in_frequency(model, truth):
     assert any(abs(f - r.measured_hz) < 1.5 for f in where["frequency_hz"][:3]
                for r in d.frf.resonances)
     assert any("resonance measured at" in line for line in d.summary())
+    step = d.channels["joint_angle"].noise.step
+    assert f"  noise level σ = {step / math.sqrt(12):.4g} rad (quantisation step q={step:.6g})" in (
+        d.summary())
     json_ready = d.to_dict()
     assert json_ready["consistent_with_noise"] is False
     assert json_ready["channels"]["tip_acceleration"]["consistent"] is False

@@ -8,6 +8,7 @@ one candidate set and record layout, so the compiled Jacobian is reused across t
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import math
 from typing import ClassVar
@@ -24,6 +25,8 @@ from jaxflex.discover import (
     Candidate,
     DiscoveryFit,
     _Engine,
+    _initial_params,
+    _rigid,
     _score,
     _Slot,
     add_effect,
@@ -231,6 +234,17 @@ def test_clean_records_have_no_significant_candidate():
     assert {r.effect for r in ranking} == {c.name for c in candidate_set()}
 
 
+def test_given_noise_levels_are_used_and_the_rest_estimated(payload_case):
+    records, _, _ = payload_case
+    fit = refit(Model(), START, records, noise={"joint_angle": 1e-3})
+    assert fit.noise["joint_angle"] == NoiseLevel(1e-3) and fit.noise["joint_angle"].describe() == (
+        "given")
+    assert fit.noise["tip_acceleration"].source == "estimated"
+    assert fit.noise["tip_acceleration"].sigma == pytest.approx(ACCELEROMETER_SIGMA, rel=0.1)
+    with pytest.raises(ValueError, match=r"^noise given for unknown channel 'torque'"):
+        refit(Model(), START, records, noise={"torque": 1.0})
+
+
 def test_add_effect_recovers_the_payload(payload_case):
     records, _, _ = payload_case
     base = DiscoveryFit(Model(), dict(START), math.nan, 6, 0, NOISE)
@@ -406,3 +420,13 @@ def test_bundled_example_is_reproducible_and_hides_a_payload():
     fit, held = load_example()
     assert len(fit) == 3 and len(held) == 1
     assert "payload" in fit[0].metadata["answer"]
+
+
+@pytest.mark.slow
+def test_a_rigid_estimate_beyond_a_bound_seeds_the_search_on_it():
+    """The warm start of a rigid-body b_v above its bound round-trips through the log map to
+    the bound itself (it ended one ulp past it, and identify refused the seed)."""
+    records = make_records(inputs=("pulse", "half_sine"), duration=1.0)
+    above = dataclasses.replace(_rigid(records), b_v=0.5, active=())
+    params = _initial_params(records, Model(), None, (2, 8), 0, False, above)
+    assert 1e-5 <= params["b_v"] <= 0.3
