@@ -728,9 +728,8 @@ def _fit_share(basis: np.ndarray, y: np.ndarray) -> tuple[np.ndarray, float]:
 
 
 def _integral(x: np.ndarray, time: np.ndarray) -> np.ndarray:
-    from scipy.integrate import cumulative_trapezoid
-
-    return cumulative_trapezoid(x, time, initial=0)
+    """Cumulative trapezoidal integral from the first sample (0 there)."""
+    return np.concatenate([[0.0], np.cumsum(0.5 * (x[1:] + x[:-1]) * np.diff(time))])
 
 
 def _effective_inertia(time: np.ndarray, angle: np.ndarray, torque: np.ndarray) -> float | None:

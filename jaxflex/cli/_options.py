@@ -67,12 +67,19 @@ def add_fit_options(p: argparse.ArgumentParser) -> None:
                        metavar=metavar, help=text)
 
 
-def model_from(effects: list[str]):
-    """The reference model with the named effects added."""
+def model_from(effects: list[str], option: str = "--effect"):
+    """The reference model with the named effects added (an unknown name names the option)."""
     from jaxflex.effects import get_effect
     from jaxflex.model import Model
 
-    return Model().with_effects(*(get_effect(name) for name in effects))
+    added = []
+    for name in effects:
+        try:
+            added.append(get_effect(name))
+        except (KeyError, ValueError) as exc:
+            message = exc.args[0] if exc.args else exc
+            raise UsageError(f"{option} {name}: {message}") from None
+    return Model().with_effects(*added)
 
 
 def pair_values(args: argparse.Namespace) -> dict[str, dict[str, Any]]:
