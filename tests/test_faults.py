@@ -264,7 +264,6 @@ def _huge_torque(c):
 @pytest.mark.parametrize(("change", "fragments"), [
     (_ms, ["column 'time': step 1 s", "milliseconds"]),
     (_small_degrees, ["column 'joint_angle'", "is the angle in degrees?"]),
-    (_constant_angle, ["column 'joint_angle' is constant", "encoder"]),
     (_huge_torque, ["column 'torque'", "joint inertia", "is the torque in N m"]),
 ])
 def test_6_implausible_units_stop_with_the_remedy(tmp_path, capsys, change, fragments):
@@ -275,6 +274,17 @@ def test_6_implausible_units_stop_with_the_remedy(tmp_path, capsys, change, frag
     (tmp_path / "fit.json").write_text("{}")
     refused(["identify", path, "--out", tmp_path / "fit.json", "--no-unit-check"], capsys,
             tmp_path, "fit.json: file exists")
+
+
+def test_6_constant_angle_under_torque_is_reported(tmp_path, capsys):
+    from jaxflex.data import RecordWarning
+
+    path = rewrite(tmp_path, "still.csv", _constant_angle)
+    (tmp_path / "fit.json").write_text("{}")
+    with pytest.warns(RecordWarning, match=r"still\.csv: column 'joint_angle' is constant \(0\.25\)"
+                      ".*breakaway friction, or the encoder is not connected"):
+        refused(["identify", path, "--out", tmp_path / "fit.json"], capsys, tmp_path,
+                "fit.json: file exists")
 
 
 # --- 7. absurd bounds ---------------------------------------------------------------------------

@@ -54,6 +54,11 @@ def load_records(paths: Sequence[str], *, resample: bool, unit_check: bool = Tru
             for earlier in records[:i]:
                 if same_file(r.source, earlier.source):
                     raise UsageError(f"{r.source}: record file given twice")
+                if r.name == earlier.name:
+                    raise UsageError(
+                        f"{earlier.source} and {r.source}: two records named {r.name!r}; "
+                        "rename one of the files"
+                    )
         return Dataset(records)
     except RecordError as exc:
         raise UsageError(str(exc)) from None
@@ -87,11 +92,13 @@ def main(argv: Sequence[str] | None = None) -> int:
     argv = list(sys.argv[1:] if argv is None else argv)
     debug = "--debug" in argv
     argv = [a for a in argv if a != "--debug"]
-    parser = build_parser()
     try:
-        args = parser.parse_args(argv)
+        args = build_parser().parse_args(argv)
     except SystemExit as exc:  # --help (0) or an option error, already printed (2)
         return int(exc.code or 0)
+    except KeyboardInterrupt:
+        print("jaxflex: interrupted", file=sys.stderr)
+        return EXIT_INTERRUPTED
     prefix = f"jaxflex {args.command}"
     restore = _on_sigterm()
     format_warning = warnings.formatwarning
