@@ -142,6 +142,9 @@ needs_setpriv = pytest.mark.skipif(
     ["simulate", "--input", "pulse", "--out", "ro/s.csv"],
     ["validate", "{rec}", "--fit", "{fit}", "--report", "ro/report"],
     ["design", "--max-torque", "1", "--max-angle", "1", "--max-speed", "5", "--out", "ro/d.csv"],
+    ["study", "{rec}", "--seeds", "0", "--out", "ro/study.json"],
+    ["discover", "{rec}", "--json", "ro/discover.json"],
+    ["demo", "--out", "ro/demo"],
 ])
 def test_1_read_only_directory_is_refused_before_any_work(tmp_path, command):
     rec, fit = example(tmp_path), write_fit(tmp_path / "fit.json", fit_data())
@@ -154,7 +157,7 @@ def test_1_read_only_directory_is_refused_before_any_work(tmp_path, command):
     out, err = proc.communicate(timeout=120)
     assert proc.returncode == 2, err
     assert err.count("\n") == 1 and "Traceback" not in err
-    assert f"{argv[-2]} ro/" in err and "is not writable" in err
+    assert (f"{argv[-2]} ro/" in err or "demo: error: ro/demo/" in err) and "not writable" in err
     assert list(ro.iterdir()) == []
     assert time.perf_counter() - start < 60  # no search, simulation or design ran
 
@@ -431,15 +434,24 @@ def test_13_ctrl_c_is_one_line_and_leaves_nothing(monkeypatch, tmp_path, capsys)
     assert list(tmp_path.iterdir()) == []
 
 
-def test_13_sigterm_stops_with_one_line_and_no_files(tmp_path):
+@pytest.mark.parametrize(("signum", "status", "word"), [
+    (signal.SIGTERM, 143, "terminated"), (signal.SIGINT, 130, "interrupted")])
+def test_13_signals_stop_with_one_line_and_no_files(tmp_path, signum, status, word):
     proc = jaxflex_subprocess(["demo", "--out", tmp_path / "demo"], tmp_path)
-    assert proc.stdout.readline().startswith("== records")
-    proc.send_signal(signal.SIGTERM)
+    assert proc.stdout.readline().startswith("== records")  # at work
+    proc.send_signal(signum)
     _, err = proc.communicate(timeout=120)
-    assert proc.returncode == 143
-    assert err.strip().splitlines()[-1] == "jaxflex demo: terminated; no partial output was left"
-    assert not (tmp_path / "demo").exists() or temp_files(tmp_path) == []
+    assert proc.returncode == status
+    assert err.strip().splitlines() == [f"jaxflex demo: {word}; no partial output was left"]
     assert [p for p in tmp_path.rglob("*") if p.is_file()] == []
+
+
+def test_13_debug_shows_the_traceback(tmp_path):
+    from jaxflex.cli import UsageError
+
+    with pytest.raises(UsageError, match="--set dt: use --dt instead"):
+        main(["simulate", "--input", "pulse", "--set", "dt=1", "--out", str(tmp_path / "x.csv"),
+              "--debug"])
 
 
 def test_13_temp_file_of_a_killed_process_is_removed(tmp_path, capsys):
