@@ -565,3 +565,39 @@ def test_16_times_are_kept_only_under_timing(tmp_path):
     assert "wall_time" not in written["refinement"] and "compile_time" not in written["refinement"]
     again = Fit.from_dict(written)
     assert again.refinement.wall_time == fit.timing["refine"]  # read back from "timing"
+
+
+# --- the fitting options shared by identify, study and discover ----------------------------------
+
+
+@pytest.mark.parametrize(("option", "value", "message"), [
+    ("--bound", "J_h=5:1", "--bound J_h=5:1: lower bound 5.0 must be below upper 1.0"),
+    ("--fix", "E=abc", "--fix E: 'abc' is not a number"),
+    ("--weight", "joint_angle", "--weight 'joint_angle': expected CHANNEL=W"),
+    ("--noise", "joint_angle=-1", "--noise joint_angle: '-1' must be > 0"),
+    ("--effect", "warp", "--effect warp: unknown effect 'warp'"),
+])
+@pytest.mark.parametrize("command", ["identify", "study", "discover"])
+def test_fitting_options_are_one_definition(tmp_path, capsys, command, option, value, message):
+    out = {"identify": "--out", "study": "--out", "discover": "--json"}[command]
+    refused([command, example(tmp_path), option, value, out, tmp_path / "o.json"], capsys,
+            tmp_path, message)
+
+
+def test_discover_passes_effects_and_noise_levels_on(monkeypatch, tmp_path, capsys):
+    import functools
+
+    module = sys.modules["jaxflex.discover"]
+    seen = {}
+
+    @functools.wraps(module.discover)
+    def spy(records, **kwargs):
+        seen.update(kwargs)
+        raise KeyboardInterrupt  # stop here: what was passed is the point
+
+    monkeypatch.setattr(module, "discover", spy)
+    code, _ = run(["discover", example(tmp_path), "--effect", "payload", "--noise",
+                   "joint_angle=2e-4", "--json", tmp_path / "d.json"], capsys)
+    assert code == 130
+    assert seen["model"].effect_names == ("payload",)
+    assert {c: level.sigma for c, level in seen["noise"].items()} == {"joint_angle": 2e-4}

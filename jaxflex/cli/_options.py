@@ -1,11 +1,12 @@
 """The fitting options shared by ``identify``, ``study`` and ``discover``, defined once.
 
 ``--effect NAME`` adds a physical effect to the model; ``--bound NAME=LO:HI``, ``--fix
-NAME=VALUE`` and ``--weight CHANNEL=W`` become the ``bounds``, ``fixed`` and ``weights``
-keywords of :func:`jaxflex.identify.identify`. Each repeatable ``NAME=VALUE`` option is one row
-of :data:`PAIR_OPTIONS` (a :class:`PairOption`): adding one (e.g.
-``--noise CHANNEL=SIGMA`` → ``noise``) is one row. :func:`fit_keywords` passes on only the
-keywords the called function accepts, and refuses an option given to a function without it.
+NAME=VALUE``, ``--weight CHANNEL=W`` and ``--noise CHANNEL=SIGMA`` become the ``bounds``,
+``fixed``, ``weights`` and ``noise`` keywords of :func:`jaxflex.identify.identify` and
+:func:`jaxflex.discover.discover`. Each repeatable ``NAME=VALUE`` option is one row
+of :data:`PAIR_OPTIONS` (a :class:`PairOption`): adding one is one row. :func:`fit_keywords`
+passes on only the keywords the called function accepts, and refuses an option given to a
+function without it.
 """
 
 from __future__ import annotations
@@ -30,6 +31,20 @@ def _number(text: str, label: str) -> float:
     if not math.isfinite(value):
         raise UsageError(f"{label}: {text!r} must be finite")
     return value
+
+
+def _positive(text: str, label: str) -> float:
+    value = _number(text, label)
+    if value <= 0:
+        raise UsageError(f"{label}: {text!r} must be > 0")
+    return value
+
+
+def _noise_level(text: str, label: str):
+    """A white-noise level (:class:`jaxflex.diagnose.NoiseLevel`) of standard deviation TEXT."""
+    from jaxflex.diagnose import NoiseLevel
+
+    return NoiseLevel(sigma=_positive(text, label))
 
 
 def _interval(text: str, label: str) -> tuple[float, float]:
@@ -65,6 +80,9 @@ PAIR_OPTIONS: tuple[PairOption, ...] = (
                _number),
     PairOption("--weight", "weights", "CHANNEL=W",
                "weight of an output channel (repeatable; default 1 each)", _number),
+    PairOption("--noise", "noise", "CHANNEL=SIGMA",
+               "noise standard deviation of a channel, in its unit (repeatable; default: "
+               "estimated from the records)", _noise_level),
 )
 
 
