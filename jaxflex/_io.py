@@ -98,24 +98,31 @@ def atomic_write(
     _remove_stale_temps(target)
     mode = _mode_for(target)
     tmp = target.with_name(f".{target.name}{TEMP_MARK}{os.getpid()}-{secrets.token_hex(4)}")
-    staged = False
+    with _sigterm_unwinds():
+        try:
+            _write_and_place(tmp, target, write, mode, batch, path)
+        except BaseException:  # an error, Ctrl-C or SIGTERM: no temporary file stays
+            _unlink(tmp)
+            raise
+    return path
+
+
+def _write_and_place(tmp: Path, target: Path, write: Callable[[Path], None], mode: int,
+                     batch: _Batch | None, path: Path) -> None:
+    """Write ``tmp``, give it ``mode`` and rename it onto ``target`` (or stage it in
+    ``batch``)."""
     try:
         os.close(os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o600))
         write(tmp)
         os.chmod(tmp, mode)
         if batch is not None:
             batch.staged.append((tmp, target))
-            staged = True
         else:
             os.replace(tmp, target)
     except OSError as exc:
         raise OutputError(
             f"{path}: cannot write ({exc.strerror or exc}); nothing was written there"
         ) from exc
-    finally:
-        if not staged:
-            _unlink(tmp)
-    return path
 
 
 @dataclass
@@ -153,11 +160,35 @@ def all_or_nothing() -> Iterator[None]:
     batch = _Batch()
     token = _BATCH.set(batch)
     try:
-        yield
-        batch.commit()
+        with _sigterm_unwinds():
+            yield
+            batch.commit()
     finally:
         batch.discard()
         _BATCH.reset(token)
+
+
+@contextlib.contextmanager
+def _sigterm_unwinds() -> Iterator[None]:
+    """Inside the block, SIGTERM raises ``SystemExit(143)`` instead of killing the process at
+    once, so that temporary files are removed; only where nobody handles SIGTERM already (the
+    command line does), and only in the main thread."""
+    import signal
+    import threading
+
+    if (threading.current_thread() is not threading.main_thread()
+            or signal.getsignal(signal.SIGTERM) is not signal.SIG_DFL):
+        yield
+        return
+
+    def terminate(signum, frame):
+        raise SystemExit(128 + signum)
+
+    signal.signal(signal.SIGTERM, terminate)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGTERM, signal.SIG_DFL)
 
 
 def write_text(path: str | os.PathLike, text: str, *, overwrite: bool = False) -> Path:

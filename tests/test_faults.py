@@ -124,7 +124,13 @@ def jaxflex_subprocess(args, cwd: Path, *, drop_caps: bool = False, **kwargs):
         command = [*DROP_CAPS, *command]
     env = os.environ | {"PYTHONPATH": str(Path(jaxflex.__file__).parent.parent)}
     return subprocess.Popen(command, cwd=cwd, env=env, stdout=subprocess.PIPE,
-                            stderr=subprocess.PIPE, text=True, **kwargs)
+                            stderr=subprocess.PIPE, text=True, preexec_fn=_default_sigint,
+                            **kwargs)
+
+
+def _default_sigint() -> None:
+    """A child started from a background job inherits an ignored SIGINT; a terminal's is not."""
+    signal.signal(signal.SIGINT, signal.SIG_DFL)
 
 
 needs_setpriv = pytest.mark.skipif(
@@ -444,6 +450,25 @@ def test_13_signals_stop_with_one_line_and_no_files(tmp_path, signum, status, wo
     assert proc.returncode == status
     assert err.strip().splitlines() == [f"jaxflex demo: {word}; no partial output was left"]
     assert [p for p in tmp_path.rglob("*") if p.is_file()] == []
+
+
+def test_13_sigterm_in_the_api_leaves_no_staged_file(tmp_path):
+    """Outside the command line too: SIGTERM inside all_or_nothing removes what was staged."""
+    script = ("import sys, time\n"
+              "from jaxflex._io import all_or_nothing, write_text\n"
+              "with all_or_nothing():\n"
+              "    write_text(sys.argv[1], 'first')\n"
+              "    print('staged', flush=True)\n"
+              "    time.sleep(60)\n")
+    env = os.environ | {"PYTHONPATH": str(Path(jaxflex.__file__).parent.parent)}
+    proc = subprocess.Popen([sys.executable, "-c", script, str(tmp_path / "a.txt")], env=env,
+                            stdout=subprocess.PIPE, text=True)
+    assert proc.stdout.readline() == "staged\n"
+    assert len(temp_files(tmp_path)) == 1
+    proc.send_signal(signal.SIGTERM)
+    proc.communicate(timeout=60)
+    assert proc.returncode == 143
+    assert list(tmp_path.iterdir()) == []
 
 
 def test_13_debug_shows_the_traceback(tmp_path):
