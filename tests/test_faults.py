@@ -532,6 +532,23 @@ def test_14_design_options_are_checked(tmp_path, capsys):
             "--rms-torque 0.5 exceeds --max-torque 0.2")
 
 
+def test_design_rms_torque_defaults_to_half_the_peak(monkeypatch, tmp_path, capsys):
+    import functools
+
+    module = sys.modules["jaxflex.design"]
+    seen = {}
+
+    @functools.wraps(module.design_input)
+    def spy(**kwargs):
+        seen.update(kwargs)
+        raise KeyboardInterrupt  # stop before the design: the settings are the point
+
+    monkeypatch.setattr(module, "design_input", spy)
+    code, _ = run(["design", "--max-torque", "0.8", "--max-angle", "1", "--max-speed", "5",
+                   "--out", tmp_path / "d.csv"], capsys)
+    assert code == 130 and seen["rms_torque"] == 0.4 and seen["max_torque"] == 0.8
+
+
 @pytest.mark.slow
 def test_14_design_without_information_is_not_written(tmp_path, capsys):
     refused(["design", "--max-torque", "0.5", "--max-angle", "1e-9", "--max-speed", "5",
