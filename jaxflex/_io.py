@@ -6,9 +6,10 @@ target in one step. So a reader never sees half a file, and a crash leaves the o
 
 * Permissions are those of an ordinary new file (``0666`` less the umask); a replaced file keeps
   its mode. A symbolic link is kept: the file it points to is replaced.
-* The temporary file is removed on every error, on Ctrl-C and on SIGTERM (the command line turns
-  SIGTERM into an exception so that ``finally`` blocks run). A temporary file left by a killed
-  process (SIGKILL) is removed by the next write of the same target.
+* The temporary file is removed on every error, on Ctrl-C and on SIGTERM (the command line's
+  SIGTERM handler calls :func:`remove_temporaries` and exits; elsewhere SIGTERM inside a write
+  does the same, then raises ``SystemExit(143)``). A temporary file left by a killed process
+  (SIGKILL) is removed by the next write of the same target.
 * :func:`all_or_nothing` groups the writes of one command: files appear together when the block
   ends, and none of them if it fails.
 """
@@ -30,6 +31,10 @@ from typing import Any
 
 TEMP_MARK = ".jaxflex-tmp-"
 """Part of the name of every temporary file (``.NAME.jaxflex-tmp-PID-XXXX``)."""
+_LIVE: set[Path] = set()
+"""Temporary files of this process not yet renamed or removed (see :func:`remove_temporaries`)."""
+_CREATED: list[Path] = []
+"""Directories made for outputs not yet in place (removed again, when empty, on failure)."""
 
 
 class OutputError(ValueError):
@@ -95,27 +100,48 @@ def atomic_write(
     created = _make_parents(target.parent)
     if batch is not None:
         batch.created_dirs += created
+        _CREATED.extend(created)
     _remove_stale_temps(target)
     mode = _mode_for(target)
     tmp = target.with_name(f".{target.name}{TEMP_MARK}{os.getpid()}-{secrets.token_hex(4)}")
-    staged = False
+    _LIVE.add(tmp)
+    with _sigterm_unwinds():
+        try:
+            _write_and_place(tmp, target, write, mode, batch, path)
+        except BaseException:  # an error, Ctrl-C or SIGTERM: no temporary file stays
+            _unlink(tmp)
+            raise
+    return path
+
+
+def remove_temporaries() -> None:
+    """Remove every temporary file this process has not placed yet, and the output directories
+    made for them that are still empty: what a signal handler calls before the process ends."""
+    for tmp in list(_LIVE):
+        _unlink(tmp)
+    for directory in reversed(list(_CREATED)):
+        with contextlib.suppress(OSError):
+            directory.rmdir()
+    _CREATED.clear()
+
+
+def _write_and_place(tmp: Path, target: Path, write: Callable[[Path], None], mode: int,
+                     batch: _Batch | None, path: Path) -> None:
+    """Write ``tmp``, give it ``mode`` and rename it onto ``target`` (or stage it in
+    ``batch``)."""
     try:
         os.close(os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o600))
         write(tmp)
         os.chmod(tmp, mode)
         if batch is not None:
             batch.staged.append((tmp, target))
-            staged = True
         else:
             os.replace(tmp, target)
+            _LIVE.discard(tmp)
     except OSError as exc:
         raise OutputError(
             f"{path}: cannot write ({exc.strerror or exc}); nothing was written there"
         ) from exc
-    finally:
-        if not staged:
-            _unlink(tmp)
-    return path
 
 
 @dataclass
@@ -126,6 +152,7 @@ class _Batch:
     def commit(self) -> None:
         for tmp, target in self.staged:
             os.replace(tmp, target)
+            _LIVE.discard(tmp)
         self.staged.clear()
 
     def discard(self) -> None:
@@ -135,6 +162,10 @@ class _Batch:
         for directory in reversed(self.created_dirs):
             with contextlib.suppress(OSError):
                 directory.rmdir()  # only if still empty
+        for directory in self.created_dirs:
+            with contextlib.suppress(ValueError):
+                _CREATED.remove(directory)
+        self.created_dirs.clear()
 
 
 _BATCH: contextvars.ContextVar[_Batch | None] = contextvars.ContextVar("_BATCH", default=None)
@@ -153,11 +184,36 @@ def all_or_nothing() -> Iterator[None]:
     batch = _Batch()
     token = _BATCH.set(batch)
     try:
-        yield
-        batch.commit()
+        with _sigterm_unwinds():
+            yield
+            batch.commit()
     finally:
         batch.discard()
         _BATCH.reset(token)
+
+
+@contextlib.contextmanager
+def _sigterm_unwinds() -> Iterator[None]:
+    """Inside the block, SIGTERM raises ``SystemExit(143)`` instead of killing the process at
+    once, so that temporary files are removed; only where nobody handles SIGTERM already (the
+    command line does), and only in the main thread."""
+    import signal
+    import threading
+
+    if (threading.current_thread() is not threading.main_thread()
+            or signal.getsignal(signal.SIGTERM) is not signal.SIG_DFL):
+        yield
+        return
+
+    def terminate(signum, frame):
+        remove_temporaries()  # first: the exception below may meet a bare `except:`
+        raise SystemExit(128 + signum)
+
+    signal.signal(signal.SIGTERM, terminate)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGTERM, signal.SIG_DFL)
 
 
 def write_text(path: str | os.PathLike, text: str, *, overwrite: bool = False) -> Path:
@@ -248,6 +304,7 @@ def _alive(pid: int) -> bool:
 def _unlink(path: Path) -> None:
     with contextlib.suppress(FileNotFoundError):
         path.unlink()
+    _LIVE.discard(path)
 
 
 def to_jsonable(value: Any) -> Any:

@@ -669,8 +669,10 @@ def _check_excitation_and_units(columns: Mapping[str, np.ndarray], where: str) -
 def check_units(columns: Mapping[str, np.ndarray], where: str = "record") -> None:
     """Stop (RecordError) on columns whose units are implausible for a lab arm.
 
+    Runs on every loaded record (:func:`load_record`) unless ``unit_check=False``.
+
     * time: a step of :data:`MAX_PLAUSIBLE_DT` s or more (milliseconds or sample numbers?);
-    * joint angle: constant although the torque is not (encoder not connected?);
+    * joint angle: constant although the torque is not (a warning: stiction, or no encoder);
     * joint angle against tip acceleration integrated twice (the tip's path, up to a drift): their
       ratio is the arm's length; below :data:`MIN_PLAUSIBLE_LENGTH` the angle is in degrees;
     * torque against angular acceleration, speed and direction (least squares): an inertia
@@ -686,12 +688,18 @@ def check_units(columns: Mapping[str, np.ndarray], where: str = "record") -> Non
             f"{where}: column 'time': step {dt:.6g} s ({1 / dt:.3g} Hz sampling); is time in "
             f"milliseconds or sample numbers? time must be in s{skip}"
         )
-    angle, torque = columns["joint_angle"], columns["torque"]
-    if np.ptp(angle) == 0:
-        raise RecordError(
+    angle, torque = columns.get("joint_angle"), columns["torque"]
+    if angle is None:
+        return
+    if np.ptp(angle) == 0:  # possible (torque below breakaway friction), but worth a word
+        warnings.warn(
             f"{where}: column 'joint_angle' is constant ({float(angle[0])!r}) although the "
-            f"torque is not; is the encoder connected?{skip}"
+            "torque is not: the torque stays below the joint's breakaway friction, or the "
+            "encoder is not connected; such a record tells nothing about the arm's dynamics",
+            RecordWarning,
+            stacklevel=3,
         )
+        return
     if "tip_acceleration" in columns:
         length = _effective_length(time, angle, columns["tip_acceleration"])
         if length is not None and abs(length) < MIN_PLAUSIBLE_LENGTH:
@@ -728,9 +736,8 @@ def _fit_share(basis: np.ndarray, y: np.ndarray) -> tuple[np.ndarray, float]:
 
 
 def _integral(x: np.ndarray, time: np.ndarray) -> np.ndarray:
-    from scipy.integrate import cumulative_trapezoid
-
-    return cumulative_trapezoid(x, time, initial=0)
+    """Cumulative trapezoidal integral from the first sample (0 there)."""
+    return np.concatenate([[0.0], np.cumsum(0.5 * (x[1:] + x[:-1]) * np.diff(time))])
 
 
 def _effective_inertia(time: np.ndarray, angle: np.ndarray, torque: np.ndarray) -> float | None:

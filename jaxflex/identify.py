@@ -390,7 +390,7 @@ FIT_SCHEMA = _record({
         "result": _typed(str, "a string"), "message": _typed(str, "a string"),
         "steps": _typed(int, "a whole number"), "n_starts": _typed(int, "a whole number"),
         "wall_time": _number_field(), "compile_time": _number_field(),
-    }, optional=("n_starts", *_REFINEMENT_TIMES))),
+    }, optional=_REFINEMENT_TIMES)),
     "method": _one_of(*METHODS),
     "seed": _typed(int, "a whole number"),
     "settings": _typed(dict, "an object"),

@@ -5,10 +5,12 @@ from __future__ import annotations
 import math
 import re
 import warnings
+from pathlib import Path
 
 import numpy as np
 import pytest
 
+import jaxflex
 from jaxflex._io import OutputExistsError
 from jaxflex.data import (
     Dataset,
@@ -459,3 +461,24 @@ def test_load_dataset_from_directory_and_list(tmp_path):
     assert ds.names == ("a", "b", "c")
     assert load_dataset([tmp_path / "b.csv"]).names == ("b",)
     assert math.isclose(ds.dt, DT, rel_tol=1e-12)
+
+
+@pytest.mark.parametrize(
+    ("column", "scale", "fragment"),
+    [
+        ("time", 1000.0, "column 'time': step 1 s (1 Hz sampling); is time in milliseconds"),
+        ("joint_angle", 180 / np.pi, "is the angle in degrees? joint_angle must be in rad"),
+        ("torque", 1e6, "column 'torque': the record implies a joint inertia of"),
+    ],
+)
+def test_implausible_units_stop_loading_unless_unchecked(tmp_path, column, scale, fragment):
+    """Units checked against physics (tip path over angle; torque over angular motion) on a
+    record the test scales, with the remedy named; unit_check=False loads it as it is."""
+    example = Path(jaxflex.__file__).parent / "data" / "example_pulse.csv"
+    record = load_record(example)
+    columns = record.to_dict()
+    columns[column] = scale * columns[column]
+    rows = [",".join(repr(float(v)) for v in row) for row in zip(*columns.values(), strict=True)]
+    path = write_csv(tmp_path / "scaled.csv", ",".join(columns), rows)
+    load_error(path, fragment, "(pass unit_check=False to skip this check)")
+    assert load_record(path, unit_check=False).channel(column)[5] == columns[column][5]

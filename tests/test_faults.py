@@ -124,7 +124,13 @@ def jaxflex_subprocess(args, cwd: Path, *, drop_caps: bool = False, **kwargs):
         command = [*DROP_CAPS, *command]
     env = os.environ | {"PYTHONPATH": str(Path(jaxflex.__file__).parent.parent)}
     return subprocess.Popen(command, cwd=cwd, env=env, stdout=subprocess.PIPE,
-                            stderr=subprocess.PIPE, text=True, **kwargs)
+                            stderr=subprocess.PIPE, text=True, preexec_fn=_default_sigint,
+                            **kwargs)
+
+
+def _default_sigint() -> None:
+    """A child started from a background job inherits an ignored SIGINT; a terminal's is not."""
+    signal.signal(signal.SIGINT, signal.SIG_DFL)
 
 
 needs_setpriv = pytest.mark.skipif(
@@ -142,6 +148,9 @@ needs_setpriv = pytest.mark.skipif(
     ["simulate", "--input", "pulse", "--out", "ro/s.csv"],
     ["validate", "{rec}", "--fit", "{fit}", "--report", "ro/report"],
     ["design", "--max-torque", "1", "--max-angle", "1", "--max-speed", "5", "--out", "ro/d.csv"],
+    ["study", "{rec}", "--seeds", "0", "--out", "ro/study.json"],
+    ["discover", "{rec}", "--json", "ro/discover.json"],
+    ["demo", "--out", "ro/demo"],
 ])
 def test_1_read_only_directory_is_refused_before_any_work(tmp_path, command):
     rec, fit = example(tmp_path), write_fit(tmp_path / "fit.json", fit_data())
@@ -154,7 +163,7 @@ def test_1_read_only_directory_is_refused_before_any_work(tmp_path, command):
     out, err = proc.communicate(timeout=120)
     assert proc.returncode == 2, err
     assert err.count("\n") == 1 and "Traceback" not in err
-    assert f"{argv[-2]} ro/" in err and "is not writable" in err
+    assert (f"{argv[-2]} ro/" in err or "demo: error: ro/demo/" in err) and "not writable" in err
     assert list(ro.iterdir()) == []
     assert time.perf_counter() - start < 60  # no search, simulation or design ran
 
@@ -264,7 +273,6 @@ def _huge_torque(c):
 @pytest.mark.parametrize(("change", "fragments"), [
     (_ms, ["column 'time': step 1 s", "milliseconds"]),
     (_small_degrees, ["column 'joint_angle'", "is the angle in degrees?"]),
-    (_constant_angle, ["column 'joint_angle' is constant", "encoder"]),
     (_huge_torque, ["column 'torque'", "joint inertia", "is the torque in N m"]),
 ])
 def test_6_implausible_units_stop_with_the_remedy(tmp_path, capsys, change, fragments):
@@ -275,6 +283,17 @@ def test_6_implausible_units_stop_with_the_remedy(tmp_path, capsys, change, frag
     (tmp_path / "fit.json").write_text("{}")
     refused(["identify", path, "--out", tmp_path / "fit.json", "--no-unit-check"], capsys,
             tmp_path, "fit.json: file exists")
+
+
+def test_6_constant_angle_under_torque_is_reported(tmp_path, capsys):
+    from jaxflex.data import RecordWarning
+
+    path = rewrite(tmp_path, "still.csv", _constant_angle)
+    (tmp_path / "fit.json").write_text("{}")
+    with pytest.warns(RecordWarning, match=r"still\.csv: column 'joint_angle' is constant \(0\.25\)"
+                      ".*breakaway friction, or the encoder is not connected"):
+        refused(["identify", path, "--out", tmp_path / "fit.json"], capsys, tmp_path,
+                "fit.json: file exists")
 
 
 # --- 7. absurd bounds ---------------------------------------------------------------------------
@@ -421,15 +440,43 @@ def test_13_ctrl_c_is_one_line_and_leaves_nothing(monkeypatch, tmp_path, capsys)
     assert list(tmp_path.iterdir()) == []
 
 
-def test_13_sigterm_stops_with_one_line_and_no_files(tmp_path):
+@pytest.mark.parametrize(("signum", "status", "word"), [
+    (signal.SIGTERM, 143, "terminated"), (signal.SIGINT, 130, "interrupted")])
+def test_13_signals_stop_with_one_line_and_no_files(tmp_path, signum, status, word):
     proc = jaxflex_subprocess(["demo", "--out", tmp_path / "demo"], tmp_path)
-    assert proc.stdout.readline().startswith("== records")
-    proc.send_signal(signal.SIGTERM)
+    assert proc.stdout.readline().startswith("== records")  # at work
+    proc.send_signal(signum)
     _, err = proc.communicate(timeout=120)
-    assert proc.returncode == 143
-    assert err.strip().splitlines()[-1] == "jaxflex demo: terminated; no partial output was left"
-    assert not (tmp_path / "demo").exists() or temp_files(tmp_path) == []
+    assert proc.returncode == status
+    assert err.strip().splitlines() == [f"jaxflex demo: {word}; no partial output was left"]
     assert [p for p in tmp_path.rglob("*") if p.is_file()] == []
+
+
+def test_13_sigterm_in_the_api_leaves_no_staged_file(tmp_path):
+    """Outside the command line too: SIGTERM inside all_or_nothing removes what was staged."""
+    script = ("import sys, time\n"
+              "from jaxflex._io import all_or_nothing, write_text\n"
+              "with all_or_nothing():\n"
+              "    write_text(sys.argv[1], 'first')\n"
+              "    print('staged', flush=True)\n"
+              "    time.sleep(60)\n")
+    env = os.environ | {"PYTHONPATH": str(Path(jaxflex.__file__).parent.parent)}
+    proc = subprocess.Popen([sys.executable, "-c", script, str(tmp_path / "a.txt")], env=env,
+                            stdout=subprocess.PIPE, text=True)
+    assert proc.stdout.readline() == "staged\n"
+    assert len(temp_files(tmp_path)) == 1
+    proc.send_signal(signal.SIGTERM)
+    proc.communicate(timeout=60)
+    assert proc.returncode == 143
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_13_debug_shows_the_traceback(tmp_path):
+    from jaxflex.cli import UsageError
+
+    with pytest.raises(UsageError, match="--set dt: use --dt instead"):
+        main(["simulate", "--input", "pulse", "--set", "dt=1", "--out", str(tmp_path / "x.csv"),
+              "--debug"])
 
 
 def test_13_temp_file_of_a_killed_process_is_removed(tmp_path, capsys):
@@ -483,6 +530,23 @@ def test_14_design_options_are_checked(tmp_path, capsys):
     refused(["design", "--max-torque", "0.2", "--rms-torque", "0.5", "--max-angle", "1",
              "--max-speed", "5", "--out", tmp_path / "d.csv"], capsys, tmp_path,
             "--rms-torque 0.5 exceeds --max-torque 0.2")
+
+
+def test_design_rms_torque_defaults_to_half_the_peak(monkeypatch, tmp_path, capsys):
+    import functools
+
+    module = sys.modules["jaxflex.design"]
+    seen = {}
+
+    @functools.wraps(module.design_input)
+    def spy(**kwargs):
+        seen.update(kwargs)
+        raise KeyboardInterrupt  # stop before the design: the settings are the point
+
+    monkeypatch.setattr(module, "design_input", spy)
+    code, _ = run(["design", "--max-torque", "0.8", "--max-angle", "1", "--max-speed", "5",
+                   "--out", tmp_path / "d.csv"], capsys)
+    assert code == 130 and seen["rms_torque"] == 0.4 and seen["max_torque"] == 0.8
 
 
 @pytest.mark.slow
@@ -543,3 +607,39 @@ def test_16_times_are_kept_only_under_timing(tmp_path):
     assert "wall_time" not in written["refinement"] and "compile_time" not in written["refinement"]
     again = Fit.from_dict(written)
     assert again.refinement.wall_time == fit.timing["refine"]  # read back from "timing"
+
+
+# --- the fitting options shared by identify, study and discover ----------------------------------
+
+
+@pytest.mark.parametrize(("option", "value", "message"), [
+    ("--bound", "J_h=5:1", "--bound J_h=5:1: lower bound 5.0 must be below upper 1.0"),
+    ("--fix", "E=abc", "--fix E: 'abc' is not a number"),
+    ("--weight", "joint_angle", "--weight 'joint_angle': expected CHANNEL=W"),
+    ("--noise", "joint_angle=-1", "--noise joint_angle: '-1' must be > 0"),
+    ("--effect", "warp", "--effect warp: unknown effect 'warp'"),
+])
+@pytest.mark.parametrize("command", ["identify", "study", "discover"])
+def test_fitting_options_are_one_definition(tmp_path, capsys, command, option, value, message):
+    out = {"identify": "--out", "study": "--out", "discover": "--json"}[command]
+    refused([command, example(tmp_path), option, value, out, tmp_path / "o.json"], capsys,
+            tmp_path, message)
+
+
+def test_discover_passes_effects_and_noise_levels_on(monkeypatch, tmp_path, capsys):
+    import functools
+
+    module = sys.modules["jaxflex.discover"]
+    seen = {}
+
+    @functools.wraps(module.discover)
+    def spy(records, **kwargs):
+        seen.update(kwargs)
+        raise KeyboardInterrupt  # stop here: what was passed is the point
+
+    monkeypatch.setattr(module, "discover", spy)
+    code, _ = run(["discover", example(tmp_path), "--effect", "payload", "--noise",
+                   "joint_angle=2e-4", "--json", tmp_path / "d.json"], capsys)
+    assert code == 130
+    assert seen["model"].effect_names == ("payload",)
+    assert {c: level.sigma for c, level in seen["noise"].items()} == {"joint_angle": 2e-4}

@@ -5,7 +5,8 @@ sets ``func`` to the function that runs it. Every command checks its inputs and 
 outputs before it computes anything (:mod:`jaxflex.cli._checks`); :func:`main` turns every
 error a user can meet — bad files or values, permissions, full disks, sizes — into one line
 ``jaxflex <command>: error: …`` with exit status 2, never a traceback (``--debug`` shows one).
-Ctrl-C and SIGTERM stop with one line and exit status 130 and 143, leaving no partial file.
+Ctrl-C and SIGTERM stop with one line and exit status 130 and 143, leaving no partial or
+temporary file.
 """
 
 from __future__ import annotations
@@ -54,6 +55,11 @@ def load_records(paths: Sequence[str], *, resample: bool, unit_check: bool = Tru
             for earlier in records[:i]:
                 if same_file(r.source, earlier.source):
                     raise UsageError(f"{r.source}: record file given twice")
+                if r.name == earlier.name:
+                    raise UsageError(
+                        f"{earlier.source} and {r.source}: two records named {r.name!r}; "
+                        "rename one of the files"
+                    )
         return Dataset(records)
     except RecordError as exc:
         raise UsageError(str(exc)) from None
@@ -77,8 +83,6 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
-class Terminated(BaseException):
-    """SIGTERM, raised as an exception so that ``finally`` blocks remove temporary files."""
 
 
 def main(argv: Sequence[str] | None = None) -> int:
@@ -87,13 +91,15 @@ def main(argv: Sequence[str] | None = None) -> int:
     argv = list(sys.argv[1:] if argv is None else argv)
     debug = "--debug" in argv
     argv = [a for a in argv if a != "--debug"]
-    parser = build_parser()
     try:
-        args = parser.parse_args(argv)
+        args = build_parser().parse_args(argv)
     except SystemExit as exc:  # --help (0) or an option error, already printed (2)
         return int(exc.code or 0)
+    except KeyboardInterrupt:
+        print("jaxflex: interrupted", file=sys.stderr)
+        return EXIT_INTERRUPTED
     prefix = f"jaxflex {args.command}"
-    restore = _on_sigterm()
+    restore = _on_sigterm(prefix)
     format_warning = warnings.formatwarning
     try:
         warnings.formatwarning = one_line_warning(prefix)
@@ -101,9 +107,6 @@ def main(argv: Sequence[str] | None = None) -> int:
     except KeyboardInterrupt:
         print(f"{prefix}: interrupted; no partial output was left", file=sys.stderr)
         return EXIT_INTERRUPTED
-    except Terminated:
-        print(f"{prefix}: terminated; no partial output was left", file=sys.stderr)
-        return EXIT_TERMINATED
     except Exception as exc:
         if debug:
             raise
@@ -115,15 +118,21 @@ def main(argv: Sequence[str] | None = None) -> int:
         restore()
 
 
-def _on_sigterm():
-    """Raise :class:`Terminated` on SIGTERM (main thread only); returns the undo function."""
+def _on_sigterm(prefix: str):
+    """On SIGTERM remove the temporary files, say so in one line and exit 143 at once (main
+    thread only; an exception could meet a bare ``except:`` in a library); returns the undo."""
+    import os
     import threading
+
+    from jaxflex._io import remove_temporaries
 
     if threading.current_thread() is not threading.main_thread():
         return lambda: None
 
     def handler(signum, frame):
-        raise Terminated
+        remove_temporaries()
+        print(f"{prefix}: terminated; no partial output was left", file=sys.stderr, flush=True)
+        os._exit(EXIT_TERMINATED)
 
     previous = signal.signal(signal.SIGTERM, handler)
     return lambda: signal.signal(signal.SIGTERM, previous)

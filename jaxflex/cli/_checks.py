@@ -22,7 +22,8 @@ from jaxflex._io import OutputError, check_writable, same_file
 from jaxflex.cli import UsageError
 
 DEFAULT_MAX_SAMPLES = 2_000_000
-"""Largest run (samples × elements / 10) without asking: 2000 s at 1 kHz, about 1 GB."""
+"""Largest run (samples × elements / 10) without asking: 2000 s at 1 kHz (about 2.5 GB by
+:func:`memory_estimate`)."""
 MAX_SAMPLES_ENV = "JAXFLEX_MAX_SAMPLES"
 FIGURE_SUFFIXES = (".png", ".pdf", ".svg")
 RECORD_SUFFIXES = (".csv", ".npz")
@@ -89,12 +90,19 @@ def check_size(n_samples: float, what: str, *, n_elements: int = 10, limit: int)
     """Refuse a run of ``n_samples`` samples of an ``n_elements`` beam above ``limit``."""
     size = float(n_samples) * max(1.0, n_elements / 10)
     if not math.isfinite(size) or size > limit:
-        gigabytes = 8 * 3 * (4 * n_elements + 12) * float(n_samples) / 1e9
+        gigabytes = memory_estimate(n_samples, n_elements) / 1e9
         raise UsageError(
             f"{what}: {float(n_samples):.3g} samples of a {n_elements}-element beam is above "
             f"the size limit of {limit:.3g} (about {gigabytes:.3g} GB of memory); raise it with "
             f"--max-samples or {MAX_SAMPLES_ENV} if this is meant"
         )
+
+
+def memory_estimate(n_samples: float, n_elements: int) -> float:
+    """Rough bytes of a simulation: per sample the beam's state (positions and velocities of
+    its 2·(n_elements + 1) degrees of freedom) and the outputs, in float64, held about three
+    times over (trajectory, derivatives, results)."""
+    return 3 * 8 * (4 * n_elements + 12) * float(n_samples)
 
 
 def add_max_samples(p: argparse.ArgumentParser) -> None:
@@ -180,6 +188,6 @@ def _is_parameter_object(data: object) -> bool:
 
 __all__ = [
     "DEFAULT_MAX_SAMPLES", "MAX_SAMPLES_ENV", "add_max_samples", "check_directory",
-    "check_outputs", "check_size", "max_samples", "positive_float", "positive_int", "read_fit",
-    "seed",
+    "check_outputs", "check_size", "max_samples", "memory_estimate", "positive_float",
+    "positive_int", "read_fit", "seed",
 ]

@@ -24,6 +24,8 @@ _API_TO_CLI: tuple[tuple[str, str], ...] = (
     (r"\bmax_frequency=", "--max-frequency "),
     (r"\bharmonics=", "--harmonics "),
     (r"\biterations=", "--iterations "),
+    (r"^weights given for", "--weight given for"),
+    (r"^amplitude must", "--amplitude must"),
 )
 
 _REMEDY = {

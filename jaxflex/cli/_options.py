@@ -1,11 +1,12 @@
 """The fitting options shared by ``identify``, ``study`` and ``discover``, defined once.
 
 ``--effect NAME`` adds a physical effect to the model; ``--bound NAME=LO:HI``, ``--fix
-NAME=VALUE`` and ``--weight CHANNEL=W`` become the ``bounds``, ``fixed`` and ``weights``
-keywords of :func:`jaxflex.identify.identify`. Each repeatable ``NAME=VALUE`` option is one row
-of :data:`PAIR_OPTIONS` (option, keyword, metavar, help, value parser): adding one (e.g.
-``--noise CHANNEL=SIGMA`` → ``noise``) is one row. :func:`fit_keywords` passes on only the
-keywords the called function accepts, and refuses an option given to a function without it.
+NAME=VALUE``, ``--weight CHANNEL=W`` and ``--noise CHANNEL=SIGMA`` become the ``bounds``,
+``fixed``, ``weights`` and ``noise`` keywords of :func:`jaxflex.identify.identify` and
+:func:`jaxflex.discover.discover`. Each repeatable ``NAME=VALUE`` option is one row
+of :data:`PAIR_OPTIONS` (a :class:`PairOption`): adding one is one row. :func:`fit_keywords`
+passes on only the keywords the called function accepts, and refuses an option given to a
+function without it.
 """
 
 from __future__ import annotations
@@ -14,9 +15,12 @@ import argparse
 import inspect
 import math
 from collections.abc import Callable
-from typing import Any
+from typing import Any, NamedTuple
 
 from jaxflex.cli import UsageError
+
+MAX_BOUND_DECADES = 12
+"""Widest ``--bound`` (upper/lower) accepted: beyond it candidates overflow the simulation."""
 
 
 def _number(text: str, label: str) -> float:
@@ -27,6 +31,20 @@ def _number(text: str, label: str) -> float:
     if not math.isfinite(value):
         raise UsageError(f"{label}: {text!r} must be finite")
     return value
+
+
+def _positive(text: str, label: str) -> float:
+    value = _number(text, label)
+    if value <= 0:
+        raise UsageError(f"{label}: {text!r} must be > 0")
+    return value
+
+
+def _noise_level(text: str, label: str):
+    """A white-noise level (:class:`jaxflex.diagnose.NoiseLevel`) of standard deviation TEXT."""
+    from jaxflex.diagnose import NoiseLevel
+
+    return NoiseLevel(sigma=_positive(text, label))
 
 
 def _interval(text: str, label: str) -> tuple[float, float]:
@@ -45,16 +63,26 @@ def _interval(text: str, label: str) -> tuple[float, float]:
     return low, high
 
 
-MAX_BOUND_DECADES = 12
-"""Widest ``--bound`` (upper/lower) accepted: beyond it candidates overflow the simulation."""
+class PairOption(NamedTuple):
+    """A repeatable ``--option NAME=VALUE`` that becomes the mapping ``keyword``."""
+
+    option: str
+    keyword: str
+    metavar: str
+    help: str
+    parse: Callable[[str, str], Any]  # (value text, label for messages) -> value
 
 
-PAIR_OPTIONS: tuple[tuple[str, str, str, str, Callable[[str, str], Any]], ...] = (
-    ("--bound", "bounds", "NAME=LO:HI",
-     "search bounds of a parameter (repeatable), e.g. J_h=1e-3:1e-2", _interval),
-    ("--fix", "fixed", "NAME=VALUE", "hold a parameter at a value (repeatable)", _number),
-    ("--weight", "weights", "CHANNEL=W",
-     "weight of an output channel (repeatable; default 1 each)", _number),
+PAIR_OPTIONS: tuple[PairOption, ...] = (
+    PairOption("--bound", "bounds", "NAME=LO:HI",
+               "search bounds of a parameter (repeatable), e.g. J_h=1e-3:1e-2", _interval),
+    PairOption("--fix", "fixed", "NAME=VALUE", "hold a parameter at a value (repeatable)",
+               _number),
+    PairOption("--weight", "weights", "CHANNEL=W",
+               "weight of an output channel (repeatable; default 1 each)", _number),
+    PairOption("--noise", "noise", "CHANNEL=SIGMA",
+               "noise standard deviation of a channel, in its unit (repeatable; default: "
+               "estimated from the records)", _noise_level),
 )
 
 
@@ -62,33 +90,40 @@ def add_fit_options(p: argparse.ArgumentParser) -> None:
     """``--effect`` and the :data:`PAIR_OPTIONS` on a command's parser."""
     p.add_argument("--effect", action="append", default=[], metavar="NAME",
                    help="add a physical effect to the model (repeatable), e.g. payload")
-    for option, keyword, metavar, text, _ in PAIR_OPTIONS:
-        p.add_argument(option, dest=f"pairs_{keyword}", action="append", default=[],
-                       metavar=metavar, help=text)
+    for o in PAIR_OPTIONS:
+        p.add_argument(o.option, dest=f"pairs_{o.keyword}", action="append", default=[],
+                       metavar=o.metavar, help=o.help)
 
 
-def model_from(effects: list[str]):
-    """The reference model with the named effects added."""
+def model_from(effects: list[str], option: str = "--effect"):
+    """The reference model with the named effects added (an unknown name names the option)."""
     from jaxflex.effects import get_effect
     from jaxflex.model import Model
 
-    return Model().with_effects(*(get_effect(name) for name in effects))
+    added = []
+    for name in effects:
+        try:
+            added.append(get_effect(name))
+        except (KeyError, ValueError) as exc:
+            message = exc.args[0] if exc.args else exc
+            raise UsageError(f"{option} {name}: {message}") from None
+    return Model().with_effects(*added)
 
 
 def pair_values(args: argparse.Namespace) -> dict[str, dict[str, Any]]:
     """``{keyword: {name: value}}`` for every pair option given (empty ones left out)."""
     out: dict[str, dict[str, Any]] = {}
-    for option, keyword, metavar, _, parse in PAIR_OPTIONS:
+    for o in PAIR_OPTIONS:
         values: dict[str, Any] = {}
-        for item in getattr(args, f"pairs_{keyword}"):
+        for item in getattr(args, f"pairs_{o.keyword}"):
             name, sep, text = (s.strip() for s in item.partition("="))
             if not sep or not name or not text:
-                raise UsageError(f"{option} {item!r}: expected {metavar}")
+                raise UsageError(f"{o.option} {item!r}: expected {o.metavar}")
             if name in values:
-                raise UsageError(f"{option}: {name!r} given twice")
-            values[name] = parse(text, f"{option} {name}")
+                raise UsageError(f"{o.option}: {name!r} given twice")
+            values[name] = o.parse(text, f"{o.option} {name}")
         if values:
-            out[keyword] = values
+            out[o.keyword] = values
     return out
 
 
@@ -97,9 +132,9 @@ def fit_keywords(args: argparse.Namespace, function: Callable) -> dict[str, Any]
     not take is refused by name."""
     accepted = inspect.signature(function).parameters
     keywords = pair_values(args)
-    for option, keyword, *_ in PAIR_OPTIONS:
-        if keyword in keywords and keyword not in accepted:
-            raise UsageError(f"{option} is not supported by this command yet")
+    for o in PAIR_OPTIONS:
+        if o.keyword in keywords and o.keyword not in accepted:
+            raise UsageError(f"{o.option} is not supported by this command yet")
     return {k: v for k, v in keywords.items() if k in accepted}
 
 
@@ -115,6 +150,6 @@ def add_record_options(p: argparse.ArgumentParser) -> None:
 
 
 __all__ = [
-    "PAIR_OPTIONS", "add_fit_options", "add_record_options", "fit_keywords", "model_from",
-    "pair_values",
+    "PAIR_OPTIONS", "PairOption", "add_fit_options", "add_record_options", "fit_keywords",
+    "model_from", "pair_values",
 ]

@@ -77,12 +77,11 @@ def parse_assignments(items: list[str]) -> dict[str, float]:
 
 def build_model_and_params(assignments: dict[str, float], effects: str, dt: float, duration: float):
     """The model (testbed settings and effects applied) and its full parameter set."""
-    from jaxflex.effects import get_effect
+    from jaxflex.cli._options import model_from
     from jaxflex.model import Model
     from jaxflex.testbed import TESTBED_SETTINGS, Testbed
 
-    names = [e.strip() for e in effects.split(",") if e.strip()]
-    model = Model(effects=tuple(get_effect(n) for n in names))
+    model = model_from([e.strip() for e in effects.split(",") if e.strip()], "--effects")
     for name in TIMING_SETTINGS:
         if name in assignments:
             raise UsageError(f"--set {name}: use --{name} instead")
