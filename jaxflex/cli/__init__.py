@@ -20,6 +20,7 @@ COMMANDS: tuple[str, ...] = (
     "discover",
     "design",
     "demo",
+    "datasets",
 )
 
 
