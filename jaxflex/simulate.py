@@ -225,7 +225,7 @@ def simulate_core(
     system = _modal_system(model, params, h)
     maps = system.maps
     p, J = system.hub, system.inertia
-    length = model.testbed.length
+    length = model.testbed.clamp_offset + model.testbed.length  # tip radius from the axis
     thickness = model.testbed.thickness
     w = FRICTION_THETA
     gain = h / J + jnp.sum(p**2 * maps.gv)  # d θ'_{k+1} / d u over one step
