@@ -24,6 +24,14 @@ An arm file is TOML (read with the standard library's :mod:`tomllib`)::
     type = "voltage"
     resistance = 2.6
     ...
+    [[sensors]]               # see jaxflex.sensors; one table per measured channel
+    type = "encoder"
+    counts_per_revolution = 4096
+    [[sensors]]
+    type = "strain_gauge"
+    x = 0.0                   # m from the clamp
+    calibration = "deflection_angle"
+    channel = "deflection_angle"
 
 Any error (unknown key, missing value, wrong type, bounds that exclude the reference value) is
 an :class:`ArmError` whose one-line message names the file and the key.
@@ -44,6 +52,7 @@ from jaxflex.drives import DRIVES, Drive, TorqueDrive
 from jaxflex.effects import Effect, get_effect
 from jaxflex.model import Model
 from jaxflex.parameters import BASE_PARAMETERS, ParameterSpace, ParameterSpec, Params
+from jaxflex.sensors import SENSORS, Sensor, stations
 from jaxflex.testbed import Testbed
 
 _BASE = {spec.name: spec for spec in BASE_PARAMETERS}
@@ -55,7 +64,7 @@ class ArmError(ValueError):
 
 @dataclass(frozen=True)
 class Arm:
-    """One rig: link and settings (a :class:`Testbed`), base-parameter specs, drive, effects.
+    """One rig: link and settings (a :class:`Testbed`), base-parameter specs, drive, sensors.
 
     ``fixed`` names base parameters held at their reference value when identifying. The
     defaults are exactly the reference testbed, so ``Arm().model()`` is ``Model()``.
@@ -65,6 +74,7 @@ class Arm:
     parameters: tuple[ParameterSpec, ...] = BASE_PARAMETERS
     fixed: tuple[str, ...] = ()
     drive: Drive = field(default_factory=TorqueDrive)
+    sensors: tuple[Sensor, ...] = ()
     effects: tuple[str, ...] = ()
     n_substeps: int = 2
     name: str = "arm"
@@ -78,6 +88,15 @@ class Arm:
         unknown = sorted(set(self.fixed) - set(names))
         if unknown:
             raise ArmError(f"arm {self.name!r}: fixed parameter(s) {unknown} are not parameters")
+        channels = [s.channel for s in self.sensors]
+        if len(set(channels)) != len(channels):
+            raise ArmError(f"arm {self.name!r}: two sensors log the same channel: {channels}")
+        for s in self.sensors:
+            if s.position is not None and s.position > self.testbed.length:
+                raise ArmError(
+                    f"arm {self.name!r}: sensor {s.channel} at x = {s.position!r} m lies beyond "
+                    f"the link (length {self.testbed.length!r} m)"
+                )
         for spec in self.parameters:
             if not spec.lower <= spec.reference <= spec.upper:
                 raise ArmError(
@@ -86,9 +105,27 @@ class Arm:
                 )
 
     def model(self, *effects: Effect) -> Model:
-        """The :class:`Model` of this arm, with its own effects and any ``effects`` given."""
+        """The :class:`Model` of this arm (a station at each link sensor), with its own effects
+        and any ``effects`` given."""
         own = tuple(get_effect(name) for name in self.effects)
-        return Model(self.testbed, own + effects, self.n_substeps, self.parameters, self.drive)
+        return Model(
+            self.testbed,
+            own + effects,
+            self.n_substeps,
+            self.parameters,
+            self.drive,
+            stations(self.sensors),
+        )
+
+    def sensor(self, channel: str) -> Sensor:
+        """The sensor that logs ``channel``."""
+        for s in self.sensors:
+            if s.channel == channel:
+                return s
+        raise KeyError(
+            f"arm {self.name!r} has no sensor logging {channel!r}; channels: "
+            f"{[s.channel for s in self.sensors]}"
+        )
 
     @property
     def space(self) -> ParameterSpace:
@@ -154,6 +191,7 @@ def arm_from_dict(data: Mapping[str, Any], where: str = "arm") -> Arm:
     )
     specs, fixed = _parameters(top.table("parameters"))
     drive = _drive(top.table("drive"))
+    sensors = _sensors(top, length)
     effects = top.strings("effects", ())
     for i, name in enumerate(effects):
         try:
@@ -165,6 +203,7 @@ def arm_from_dict(data: Mapping[str, Any], where: str = "arm") -> Arm:
         parameters=specs,
         fixed=fixed,
         drive=drive,
+        sensors=sensors,
         effects=effects,
         n_substeps=n_substeps,
         name=top.string("name"),
@@ -236,6 +275,49 @@ def _drive(table: _Table) -> Drive:
     settings = {f.name: table.number(f.name) for f in dataclasses.fields(cls)}
     table.done()
     return cls(**settings)
+
+
+def _sensors(top: _Table, length: float) -> tuple[Sensor, ...]:
+    """The ``[[sensors]]`` tables: ``type`` picks the class, the other keys are its fields."""
+    entries = top._get("sensors", [])
+    if not isinstance(entries, list):
+        raise top._wrong("sensors", "an array of tables ([[sensors]])", entries)
+    sensors = []
+    for i, entry in enumerate(entries):
+        table = _Table(entry, top.where, f"sensors[{i}].")
+        kind = table.string("type")
+        if kind not in SENSORS:
+            raise ArmError(
+                f"{table.where}: {table.key('type')}: unknown sensor {kind!r}; sensors: "
+                f"{sorted(SENSORS)}"
+            )
+        values: dict[str, Any] = {}
+        for f in dataclasses.fields(SENSORS[kind]):
+            if f.name not in table.data:
+                continue
+            if isinstance(f.default, str):
+                values[f.name] = table.string(f.name)
+            elif f.default is None or f.name in ("noise", "resolution", "x"):
+                values[f.name] = table.number(f.name, minimum=0.0)
+            elif isinstance(f.default, bool) or not isinstance(f.default, (int, float)):
+                continue
+            elif isinstance(f.default, int):
+                values[f.name] = table.integer(f.name)
+            elif f.name in ("gain", "offset"):
+                values[f.name] = table.number(f.name, minimum=-math.inf)
+            else:
+                values[f.name] = table.number(f.name, minimum=0.0)
+        table.done()
+        if values.get("x", 0.0) > length:
+            raise ArmError(
+                f"{table.where}: {table.key('x')}: {values['x']!r} m lies beyond the link "
+                f"(length {length!r} m)"
+            )
+        try:
+            sensors.append(SENSORS[kind](**values))
+        except ValueError as err:
+            raise ArmError(f"{table.where}: sensors[{i}]: {err}") from None
+    return tuple(sensors)
 
 
 _MISSING: Any = object()

@@ -7,12 +7,14 @@ from collections.abc import Iterable
 
 import equinox as eqx
 import jax.numpy as jnp
+import numpy as np
 from jaxtyping import Array
 
 from jaxflex.drives import Drive, TorqueDrive
 from jaxflex.effects._base import Effect, Structure, joint_friction
 from jaxflex.fem import BeamPatterns
 from jaxflex.parameters import BASE_PARAMETERS, ParameterSpace, ParameterSpec, Params
+from jaxflex.stations import beam_rows
 from jaxflex.testbed import Testbed
 
 
@@ -30,6 +32,7 @@ class Model(eqx.Module):
     n_substeps: int = eqx.field(static=True, default=2)
     base: tuple[ParameterSpec, ...] = eqx.field(static=True, default=BASE_PARAMETERS)
     drive: Drive = TorqueDrive()
+    stations: tuple[float, ...] = eqx.field(static=True, default=())
 
     def __check_init__(self) -> None:
         if not isinstance(self.n_substeps, int) or self.n_substeps < 1:
@@ -40,6 +43,12 @@ class Model(eqx.Module):
                 raise TypeError(f"effects must be Effect instances, got {type(effect).__name__}")
         if len(set(names)) != len(names):
             raise ValueError(f"an effect appears twice: {names}")
+        for x in self.stations:
+            if not (isinstance(x, float) and 0.0 <= x <= self.testbed.length):
+                raise ValueError(
+                    f"station {x!r} must be a float position on the link, 0 <= x <= "
+                    f"{self.testbed.length} m from the clamp"
+                )
         base_names = tuple(p.name for p in self.base)
         if base_names != tuple(p.name for p in BASE_PARAMETERS):
             raise ValueError(
@@ -66,6 +75,11 @@ class Model(eqx.Module):
         return dataclasses.replace(
             self, effects=tuple(e for e in self.effects if e.name not in drop)
         )
+
+    def station_rows(self) -> tuple[np.ndarray, np.ndarray]:
+        """Rows giving ``w(x_k)`` and ``w''(x_k)`` at the stations, ``(k, n)`` each (NumPy)."""
+        tb = self.testbed
+        return beam_rows(tb.length, tb.n_elements, self.stations)
 
     def patterns(self) -> BeamPatterns:
         """Mesh patterns (NumPy, per unit rhoA and EI) for this testbed."""

@@ -8,7 +8,9 @@ import pytest
 from jaxflex import Model, identify, make_records, reference_parameters, simulate
 from jaxflex.arm import Arm, ArmError, arm_from_dict, load_arm
 from jaxflex.drives import VoltageDrive
+from jaxflex.sensors import with_stations
 from jaxflex.signals import reference_input
+from jaxflex.simulate import OUTPUT_NAMES
 
 ARMS = Path(__file__).parent.parent / "arms"
 REFERENCE = ARMS / "reference.toml"
@@ -17,7 +19,9 @@ BED = Model().testbed  # the reference testbed
 
 def test_reference_arm_file_is_exactly_the_reference_testbed():
     arm = load_arm(REFERENCE)
-    assert arm.model() == Model() and Arm().model() == Model()
+    assert Arm().model() == Model()
+    assert arm.model() == with_stations(Model(), arm.sensors) and arm.model().stations == (0.5,)
+    assert [s.channel for s in arm.sensors] == ["joint_angle", "tip_acceleration"]
     assert arm.fixed == () and arm.source == str(REFERENCE)
     ref = reference_parameters()
     assert {k: float(v) for k, v in arm.reference_parameters().items()} == {
@@ -25,7 +29,7 @@ def test_reference_arm_file_is_exactly_the_reference_testbed():
     }
     torque = reference_input("pulse")[1]
     today, from_file = simulate(Model(), ref, torque), simulate(arm.model(), ref, torque)
-    for name in today.__dataclass_fields__:
+    for name in OUTPUT_NAMES:
         np.testing.assert_array_equal(getattr(from_file, name), getattr(today, name))
 
 
@@ -68,7 +72,9 @@ def _arm_text(**replace: str) -> str:
     ("changes", "message"),
     [
         ({"width": "widht = 0.025"}, "link.width: missing value (is 'link.widht' a misspelling?)"),
-        ({"extra": "[sensor]"}, "sensor: unknown key; known keys: ["),
+        ({"extra": "[sensor]"}, "sensor: unknown key; did you mean 'sensors'?"),
+        ({"extra": "[drives]"}, "drives: unknown key; did you mean 'drive'?"),
+        ({"top": "colour = 'red'"}, "colour: unknown key; known keys: ['description', "),
         ({"clamp_offset": "clamp_offst = 0.0"}, "link.clamp_offst: unknown key; did you mean"),
         ({"length": 'length = "half a metre"'},
          "link.length: expected a number, got 'half a metre' (a string)"),
