@@ -84,6 +84,11 @@ class Sensor(eqx.Module):
         )
         return np.round(value / self.resolution) * self.resolution if self.resolution else value
 
+    def simulated_output(self, model: Model) -> tuple[str, float] | None:
+        """``(output, factor)`` when the reading is ``gain·factor·output + offset`` for one of
+        the simulator's standard outputs (:data:`~jaxflex.simulate.OUTPUT_NAMES`), else None."""
+        return None
+
     def _station(self, model: Model) -> int:
         if self.position not in model.stations:
             raise ValueError(
@@ -118,6 +123,9 @@ class Encoder(Sensor):
     def quantity(self, model: Model, outputs: Outputs) -> Array:
         return outputs.joint_angle
 
+    def simulated_output(self, model: Model) -> tuple[str, float]:
+        return "joint_angle", 1.0
+
 
 class Tachometer(Sensor):
     """Joint velocity (rad/s)."""
@@ -128,6 +136,9 @@ class Tachometer(Sensor):
 
     def quantity(self, model: Model, outputs: Outputs) -> Array:
         return outputs.joint_velocity
+
+    def simulated_output(self, model: Model) -> tuple[str, float]:
+        return "joint_velocity", 1.0
 
 
 class _LinkSensor(Sensor):
@@ -178,6 +189,11 @@ class StrainGauge(_LinkSensor):
         k = self._station(model)
         return self.scale(model) * outputs.station_curvature[..., k]
 
+    def simulated_output(self, model: Model) -> tuple[str, float] | None:
+        if self.x != 0.0:
+            return None
+        return "root_strain", self.scale(model) / (0.5 * model.testbed.thickness)
+
 
 class Accelerometer(_LinkSensor):
     """Transverse acceleration (m/s²) at ``x``: ``(r + x)·θ'' + ẅ(x)``."""
@@ -190,6 +206,9 @@ class Accelerometer(_LinkSensor):
         k = self._station(model)
         return outputs.station_acceleration[..., k]
 
+    def simulated_output(self, model: Model) -> tuple[str, float] | None:
+        return ("tip_acceleration", 1.0) if self.x == model.testbed.length else None
+
 
 class DeflectionSensor(_LinkSensor):
     """Link deflection ``w(x)`` (m) in the frame that turns with the hub."""
@@ -201,6 +220,9 @@ class DeflectionSensor(_LinkSensor):
     def quantity(self, model: Model, outputs: Outputs) -> Array:
         k = self._station(model)
         return outputs.station_deflection[..., k]
+
+    def simulated_output(self, model: Model) -> tuple[str, float] | None:
+        return ("tip_deflection", 1.0) if self.x == model.testbed.length else None
 
 
 SENSORS: dict[str, type[Sensor]] = {
