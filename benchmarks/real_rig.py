@@ -5,7 +5,8 @@ the logged voltage alone, on the held-out random run 985 (1 kHz, 60 s):
 
 * physical — ``arms/quanser_rotflex.toml`` (voltage drive, encoder, root strain gauge as
   Quanser's deflection angle), six parameters identified by DE + Levenberg–Marquardt
-  (``jaxflex.identify``) on both channels;
+  (``jaxflex.identify``) on both channels; and the same with the ``torque_offset`` effect
+  (seven parameters);
 * black box — a linear state-space model from voltage to (θ, α) identified by N4SID (the
   ``nfoursid`` package, dev extra) at every order from 2 to 12, simulated output-error
   (no Kalman gain) on the held-out voltage decimated to 500 Hz; the best held-out order is
@@ -26,7 +27,7 @@ import numpy as np
 import scipy.linalg
 import scipy.signal
 
-from jaxflex import datasets, identify
+from jaxflex import datasets, get_effect, identify
 from jaxflex._io import provenance, write_json
 from jaxflex.arm import load_arm
 from jaxflex.measured import fit_channels, model_record, validate
@@ -46,11 +47,13 @@ def clamped_frequencies(arm, params) -> list[float]:
     return [float(f) for f in np.sqrt(omega2[:2]) / (2 * np.pi)]
 
 
-def physical(arm, fit_run, held_out, generations: int, population: int, seed: int) -> dict:
+def physical(arm, fit_run, held_out, budget: tuple[int, int], seed: int, effects=()) -> dict:
+    """Identify the arm's model (plus ``effects``) on ``fit_run``; score both runs."""
+    generations, population = budget
     start = time.perf_counter()
     fit = identify(
         model_record(arm, fit_run),
-        arm.model(),
+        arm.model(*effects),
         generations=generations,
         population=population,
         seed=seed,
@@ -60,8 +63,9 @@ def physical(arm, fit_run, held_out, generations: int, population: int, seed: in
     )
     wall = time.perf_counter() - start
     params = {k: float(v) for k, v in fit.params.items()}
-    scores = validate(arm, params, [fit_run, held_out])
+    scores = validate(arm, params, [fit_run, held_out], effects=effects)
     return {
+        "effects": [e.name for e in effects],
         "settings": {"generations": generations, "population": population, "seed": seed},
         "wall_time_s": wall,
         "n_parameters": len(params) - len(arm.fixed),
@@ -133,7 +137,7 @@ def main() -> None:
     arm = load_arm(ARM)
     records = datasets.load("quanser_rotflex")
     fit_run, held_out = records["square_wave"], records["random_985"]
-    generations, population = (10, 20) if args.quick else (40, 40)
+    budget = (10, 20) if args.quick else (40, 40)
     results = {
         "data": {r.name: r.metadata["source"] for r in (fit_run, held_out)},
         "licence": fit_run.metadata["licence"],
@@ -141,12 +145,14 @@ def main() -> None:
         "black_box": black_box(fit_run, held_out),
     }
     write_json(args.out, results | {"provenance": provenance()}, overwrite=True)
-    results["physical"] = physical(arm, fit_run, held_out, generations, population, args.seed)
+    results["physical"] = physical(arm, fit_run, held_out, budget, args.seed)
+    offset = (get_effect("torque_offset"),)
+    results["physical_offset"] = physical(arm, fit_run, held_out, budget, args.seed, offset)
     write_json(args.out, results | {"provenance": provenance()}, overwrite=True)
-    for label in ("physical", "black_box"):
-        entry = results[label] if label == "physical" else results[label]["best"]
+    for label in ("physical", "physical_offset", "black_box"):
+        entry = results[label]["best"] if label == "black_box" else results[label]
         print(
-            f"{label:>9}: {entry['n_parameters']:3d} parameters, held-out NRMSE "
+            f"{label:>15}: {entry['n_parameters']:3d} parameters, held-out NRMSE "
             + ", ".join(f"{c} {v:.1f} %" for c, v in entry["nrmse_held_out"].items())
         )
 

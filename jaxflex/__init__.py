@@ -22,6 +22,7 @@ from jaxflex.parallel import configure_host_devices  # noqa: E402
 
 configure_host_devices()
 
+from jaxflex import datasets  # noqa: E402
 from jaxflex.arm import Arm, ArmError, load_arm  # noqa: E402
 from jaxflex.compare import Comparison, compare, fit_and_validate, noise_floor  # noqa: E402
 from jaxflex.data import Dataset, Record, load_dataset, load_record, save_record  # noqa: E402
@@ -82,6 +83,7 @@ __all__ = [
     "add_effect",
     "base_space",
     "compare",
+    "datasets",
     "design_input",
     "diagnose",
     "discover",

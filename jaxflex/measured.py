@@ -19,6 +19,7 @@ import numpy as np
 
 from jaxflex.arm import Arm
 from jaxflex.data import Record
+from jaxflex.effects import Effect
 from jaxflex.metrics import nrmse
 from jaxflex.simulate import simulate
 
@@ -104,14 +105,17 @@ def validate(
     params: Mapping[str, float],
     records: Sequence[Record],
     windows: Sequence[tuple[float, float] | None] | None = None,
+    *,
+    effects: Sequence[Effect] = (),
 ) -> dict[str, dict[str, float]]:
     """NRMSE (percent) of each sensor channel of each record, simulated at ``params``.
 
     Records are taken as they come (each cut to its window and re-zeroed at rest, as in
-    :func:`model_record`); the whole record (or window) is scored.
+    :func:`model_record`); the whole record (or window) is scored. ``effects`` are added to the
+    arm's model (``params`` then holds their parameters too).
     """
     windows = [None] * len(records) if windows is None else list(windows)
-    model = arm.model()
+    model = arm.model(*effects)
     scores: dict[str, dict[str, float]] = {}
     for record, window in zip(records, windows, strict=True):
         ready = model_record(arm, record, window)
