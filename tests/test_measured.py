@@ -116,3 +116,19 @@ def test_rotflex_square_wave_fit_validates_on_run_985():
     assert 0.0021 * 0.8 < params["J_h"] < 0.0021 * 1.2
     first, second = _clamped_frequencies(params)[:2]
     assert 3.4 * 0.9 < first < 3.4 * 1.1 and 21.0 * 0.9 < second < 21.0 * 1.1
+
+
+@pytest.mark.slow
+def test_a_rotflex_like_log_gives_back_its_parameters():
+    """Voltage in, quantised encoder and strain gauge out, no accelerometer: DE + LM on the
+    logged record recovers the truth; what the data cannot pin shows in the intervals."""
+    record, _ = _logged(seed=2)
+    fit = identify(
+        model_record(ROTFLEX, record), ROTFLEX.model(), generations=12, population=24, seed=1,
+        channels=fit_channels(ROTFLEX, record),
+    )
+    for name in ("E", "J_h", "b_v", "tau_c"):
+        assert fit.params[name] == pytest.approx(TRUE[name], rel=0.05), (name, fit.summary())
+    for name in ("alpha", "beta"):
+        close = fit.params[name] == pytest.approx(TRUE[name], rel=0.2)
+        assert close or name in fit.poorly_identifiable, (name, fit.summary())
