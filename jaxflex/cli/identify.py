@@ -11,6 +11,7 @@ import argparse
 from pathlib import Path
 
 from jaxflex.cli import UsageError, load_records
+from jaxflex.cli._arm import add_window_argument, identify_with_arm
 
 HELP = "identify the parameters from measured records (DE, GA or PSO + refinement)"
 
@@ -51,6 +52,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--out", required=True, metavar="FIT.json", help="where to write the fit")
     p.add_argument("--plot", metavar="FIG.png",
                    help="also write a figure: convergence and parameter intervals")
+    p.add_argument("--arm", metavar="ARM.toml", help="the rig's arm file (see jaxflex.arm)")
+    add_window_argument(p)
     p.set_defaults(func=run)
 
 
@@ -58,6 +61,10 @@ def run(args: argparse.Namespace) -> int:
     from jaxflex._io import check_writable
     from jaxflex.identify import identify
 
+    if args.arm is not None or args.window is not None:
+        if args.arm is None or args.plot is not None:
+            raise UsageError("--window needs --arm; --plot is not available with --arm")
+        return identify_with_arm(args)
     out = check_writable(args.out, args.overwrite)
     plot = None if args.plot is None else _check_figure(args.plot, args.overwrite)
     records = load_records(args.data, resample=args.resample)

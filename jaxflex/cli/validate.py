@@ -11,6 +11,7 @@ import argparse
 from pathlib import Path
 
 from jaxflex.cli import UsageError, load_records
+from jaxflex.cli._arm import add_window_argument, validate_with_arm, with_arm
 from jaxflex.compare import DEFAULT_T_END, FRFSettings, compare
 
 HELP = "compare a fitted model with measured records: metrics table and figures"
@@ -69,11 +70,17 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         metavar="S",
         help="accelerometer noise standard deviation (m/s^2), for the noise floor",
     )
+    add_window_argument(p)
+    p.add_argument("--json", metavar="TABLE.json", help="for a fit made with --arm: the scores")
     p.set_defaults(func=run)
 
 
 def run(args: argparse.Namespace) -> int:
     fit, model = _load_fit(Path(args.fit))
+    if with_arm(fit) is not None:
+        return validate_with_arm(args, fit, model)
+    if args.window is not None or args.json is not None:
+        raise UsageError("--window and --json need a fit made with `jaxflex identify --arm`")
     records = load_records(args.data, resample=args.resample)
     frf = FRFSettings(
         f_max=args.f_max, **({"min_input_db": None, "min_coherence": None} if args.raw_frf else {})
