@@ -22,6 +22,8 @@ from jaxflex.parallel import configure_host_devices  # noqa: E402
 
 configure_host_devices()
 
+from jaxflex import datasets  # noqa: E402
+from jaxflex.arm import Arm, ArmError, load_arm  # noqa: E402
 from jaxflex.compare import Comparison, compare, fit_and_validate, noise_floor  # noqa: E402
 from jaxflex.data import Dataset, Record, load_dataset, load_record, save_record  # noqa: E402
 from jaxflex.design import DesignResult, design_input, predicted_intervals  # noqa: E402
@@ -34,6 +36,7 @@ from jaxflex.discover import (  # noqa: E402
     refit,
     score_tests,
 )
+from jaxflex.drives import DRIVES, CurrentDrive, Drive, TorqueDrive, VoltageDrive  # noqa: E402
 from jaxflex.effects import EFFECTS, Effect, get_effect, library  # noqa: E402
 from jaxflex.frf import frf, mode_shapes, natural_frequencies  # noqa: E402
 from jaxflex.identify import Fit, identify, load_fit  # noqa: E402
@@ -55,12 +58,17 @@ __version__ = "0.1.0"
 
 __all__ = [
     "BASE_PARAMETERS",
+    "DRIVES",
     "EFFECTS",
+    "Arm",
+    "ArmError",
     "Comparison",
+    "CurrentDrive",
     "Dataset",
     "DesignResult",
     "Diagnosis",
     "DiscoveryReport",
+    "Drive",
     "Effect",
     "Fit",
     "Model",
@@ -70,9 +78,12 @@ __all__ = [
     "Record",
     "RigidEstimate",
     "Testbed",
+    "TorqueDrive",
+    "VoltageDrive",
     "add_effect",
     "base_space",
     "compare",
+    "datasets",
     "design_input",
     "diagnose",
     "discover",
@@ -82,6 +93,7 @@ __all__ = [
     "get_effect",
     "identify",
     "library",
+    "load_arm",
     "load_dataset",
     "load_example",
     "load_fit",

@@ -1,7 +1,8 @@
 """Measured records of the flexible arm: the ``Record`` and ``Dataset`` containers and file IO.
 
-A record holds the four columns of the reference-testbed file format (time, torque, joint angle,
-tip acceleration) as float64 NumPy arrays, plus any extra columns, metadata from ``# key: value``
+A record holds a time column, one input column (``torque``, or the ``current`` or ``voltage`` a
+real drive logs) and any subset of the measured outputs (joint angle, tip acceleration, or any
+sensor's channel) as float64 NumPy arrays, plus any extra columns, metadata from ``# key: value``
 comments and where it came from. Records are immutable and always valid: construction checks
 shapes, finiteness, strictly increasing and uniform time, so every later stage can rely on it.
 
@@ -30,16 +31,22 @@ from numpy.typing import ArrayLike
 from jaxflex._io import atomic_write
 
 REQUIRED_COLUMNS: tuple[str, ...] = ("time", "torque", "joint_angle", "tip_acceleration")
+"""The columns of the reference-testbed format; a record may lack all but ``time``."""
 OUTPUT_COLUMNS: tuple[str, ...] = ("joint_angle", "tip_acceleration")
+INPUT_COLUMNS: tuple[str, ...] = ("torque", "current", "voltage")
+"""Input columns, one per drive; a record holds exactly one of them."""
 KNOWN_UNITS: dict[str, str] = {
     "time": "s",
     "torque": "N m",
+    "current": "A",
+    "voltage": "V",
     "joint_angle": "rad",
     "tip_acceleration": "m/s^2",
     "joint_velocity": "rad/s",
     "joint_acceleration": "rad/s^2",
     "tip_deflection": "m",
     "root_strain": "1",
+    "deflection_angle": "rad",
 }
 MIN_FILE_SAMPLES = 16
 """A file with fewer samples is refused: too short to identify anything, probably truncated."""
@@ -64,7 +71,11 @@ class RecordWarning(UserWarning):
 
 @dataclass(frozen=True, eq=False)
 class Record:
-    """One experiment: sampled torque input and measured outputs of the arm.
+    """One experiment: a sampled input (torque, current or voltage) and measured outputs.
+
+    ``torque``, ``joint_angle`` and ``tip_acceleration`` are ``None`` when the record lacks them;
+    a ``current`` or ``voltage`` input and other sensors' channels are extras. A record holds
+    exactly one input column and at least one other column.
 
     Arrays are float64 copies marked read-only. Time must be strictly increasing and uniformly
     sampled (steps within ``UNIFORM_RTOL`` of each other); it need not start at 0, but
@@ -72,9 +83,9 @@ class Record:
     """
 
     time: np.ndarray
-    torque: np.ndarray
-    joint_angle: np.ndarray
-    tip_acceleration: np.ndarray
+    torque: np.ndarray | None = None
+    joint_angle: np.ndarray | None = None
+    tip_acceleration: np.ndarray | None = None
     extras: dict[str, np.ndarray] = field(default_factory=dict)
     name: str = "record"
     metadata: dict[str, str] = field(default_factory=dict)
@@ -91,12 +102,16 @@ class Record:
             raise RecordError(f"{where}: extras must be a mapping name -> array")
         for key in self.extras:
             _check_extra_name(key, where)
-        columns = {c: getattr(self, c) for c in REQUIRED_COLUMNS} | dict(self.extras)
+        present = [c for c in REQUIRED_COLUMNS if getattr(self, c) is not None]
+        columns = {c: getattr(self, c) for c in present} | dict(self.extras)
+        if "time" not in columns:
+            raise RecordError(f"{where}: a record needs a 'time' column")
+        _check_inputs_and_outputs(list(columns), where)
         columns = _check_arrays(columns, where, _sample_label)
         _check_uniform(columns["time"], where, _sample_label)
         for array in columns.values():
             array.flags.writeable = False
-        for c in REQUIRED_COLUMNS:
+        for c in present:
             object.__setattr__(self, c, columns.pop(c))
         object.__setattr__(self, "extras", columns)
         object.__setattr__(self, "metadata", _clean_metadata(self.metadata, where))
@@ -131,8 +146,15 @@ class Record:
 
     @property
     def columns(self) -> tuple[str, ...]:
-        """Column names: the four required ones, then the extras in their order."""
-        return REQUIRED_COLUMNS + tuple(self.extras)
+        """Column names: the reference-format ones present, then the extras in their order."""
+        return tuple(c for c in REQUIRED_COLUMNS if getattr(self, c) is not None) + tuple(
+            self.extras
+        )
+
+    @property
+    def input_name(self) -> str:
+        """Name of the input column (``torque``, ``current`` or ``voltage``)."""
+        return next(c for c in INPUT_COLUMNS if c in self.columns)
 
     @property
     def units(self) -> dict[str, str]:
@@ -145,7 +167,7 @@ class Record:
 
     def channel(self, name: str) -> np.ndarray:
         """The array of one column, required or extra."""
-        if name in REQUIRED_COLUMNS:
+        if name in REQUIRED_COLUMNS and getattr(self, name) is not None:
             return getattr(self, name)
         if name in self.extras:
             return self.extras[name]
@@ -210,7 +232,7 @@ class Record:
     def _with_columns(self, columns: Mapping[str, np.ndarray], note: str) -> Record:
         """A copy with all columns replaced and ``note`` appended to the history."""
         extras = {c: a for c, a in columns.items() if c not in REQUIRED_COLUMNS}
-        required = {c: columns[c] for c in REQUIRED_COLUMNS}
+        required = {c: columns.get(c) for c in REQUIRED_COLUMNS}
         return self.replace(**required, extras=extras, metadata=self._noted(note))
 
     def _noted(self, note: str) -> dict[str, str]:
@@ -351,7 +373,7 @@ def load_record(
         check_units(columns, where)
     extras = {c: a for c, a in columns.items() if c not in REQUIRED_COLUMNS}
     return Record(
-        **{c: columns[c] for c in REQUIRED_COLUMNS},
+        **{c: columns.get(c) for c in REQUIRED_COLUMNS},
         extras=extras,
         name=path.stem if name is None else name,
         metadata=metadata,
@@ -518,11 +540,10 @@ def _check_header(header: list[str], where: str, lineno: int) -> None:
                 f"{where}: line {lineno}: column {c!r} appears twice (columns "
                 f"{header.index(c) + 1} and {j + 1})"
             )
-    missing = [c for c in REQUIRED_COLUMNS if c not in header]
-    if missing:
-        unused = [c for c in header if c not in REQUIRED_COLUMNS]
-        details = "; ".join(f"column {c!r} not found{_did_you_mean(c, unused)}" for c in missing)
+    details = _missing_columns(header, "column")
+    if details:
         raise RecordError(f"{where}: line {lineno} (header): {details}; header is {header}")
+    _check_inputs_and_outputs(header, f"{where}: line {lineno} (header)")
 
 
 def _parse_cell(cell: str, where: str, lineno: int, column: str) -> float:
@@ -566,12 +587,11 @@ def _read_npz(path: Path) -> tuple[dict[str, np.ndarray], RowLabel, dict[str, st
             ) from None
         if not isinstance(metadata, dict):
             raise RecordError(f"{where}: {_NPZ_METADATA_KEY!r} is not a JSON object")
-    missing = [c for c in REQUIRED_COLUMNS if c not in arrays]
-    if missing:
-        unused = [c for c in arrays if c not in REQUIRED_COLUMNS]
-        details = "; ".join(f"array {c!r} not found{_did_you_mean(c, unused)}" for c in missing)
+    details = _missing_columns(list(arrays), "array")
+    if details:
         raise RecordError(f"{where}: {details}; arrays are {list(arrays)}")
-    ordered = {c: arrays.pop(c) for c in REQUIRED_COLUMNS} | arrays
+    _check_inputs_and_outputs(list(arrays), where)
+    ordered = {c: arrays.pop(c) for c in REQUIRED_COLUMNS if c in arrays} | arrays
     return ordered, _index_label, {str(k): str(v) for k, v in metadata.items()}
 
 
@@ -645,9 +665,14 @@ def _check_uniform(time: np.ndarray, where: str, row: RowLabel, hint: str = "") 
 
 
 def _check_excitation_and_units(columns: Mapping[str, np.ndarray], where: str) -> None:
-    """Refuse a torque that is zero throughout; warn about a joint angle that looks like degrees."""
-    if not np.any(columns["torque"]):
-        raise RecordError(f"{where}: column 'torque' is zero in every row; nothing excites the arm")
+    """Refuse an input that is zero throughout; warn about a joint angle that looks like degrees."""
+    source = next(c for c in INPUT_COLUMNS if c in columns)
+    if not np.any(columns[source]):
+        raise RecordError(
+            f"{where}: column {source!r} is zero in every row; nothing excites the arm"
+        )
+    if "joint_angle" not in columns:
+        return
     angle = columns["joint_angle"]
     peak = float(np.max(np.abs(angle)))
     if peak > _DEGREE_LIMIT:
@@ -688,8 +713,8 @@ def check_units(columns: Mapping[str, np.ndarray], where: str = "record") -> Non
             f"{where}: column 'time': step {dt:.6g} s ({1 / dt:.3g} Hz sampling); is time in "
             f"milliseconds or sample numbers? time must be in s{skip}"
         )
-    angle, torque = columns.get("joint_angle"), columns["torque"]
-    if angle is None:
+    angle, torque = columns.get("joint_angle"), columns.get("torque")
+    if angle is None or torque is None:  # a current or voltage drive: no torque scale to check
         return
     if np.ptp(angle) == 0:  # possible (torque below breakaway friction), but worth a word
         warnings.warn(
@@ -761,6 +786,36 @@ def _effective_length(time: np.ndarray, angle: np.ndarray, tip: np.ndarray) -> f
     basis = np.column_stack([angle - angle[0], np.ones_like(tau), tau, tau**2])
     coef, needed = _fit_share(basis, path)
     return float(coef[0]) if needed > 2 else None
+
+
+def _missing_columns(names: Sequence[str], kind: str) -> str:
+    """'column X not found; did you mean Y?' for each absent column that a present one resembles.
+
+    ``time`` is always required; the other reference-format columns are optional, but a name close
+    to one of them is far more likely a misspelling than another sensor.
+    """
+    unused = [c for c in names if c not in REQUIRED_COLUMNS + INPUT_COLUMNS]
+    missing = [
+        c
+        for c in REQUIRED_COLUMNS
+        if c not in names and (c == "time" or _did_you_mean(c, unused))
+    ]
+    return "; ".join(f"{kind} {c!r} not found{_did_you_mean(c, unused)}" for c in missing)
+
+
+def _check_inputs_and_outputs(names: Sequence[str], where: str) -> None:
+    """Exactly one input column (torque, current or voltage) and at least one output column."""
+    inputs = [c for c in INPUT_COLUMNS if c in names]
+    if len(inputs) != 1:
+        found = f"found {inputs}" if inputs else "found none"
+        raise RecordError(
+            f"{where}: a record needs exactly one input column of {list(INPUT_COLUMNS)}; {found}"
+        )
+    if not [c for c in names if c not in ("time", *INPUT_COLUMNS)]:
+        raise RecordError(
+            f"{where}: no output column besides {['time', *inputs]}; a record needs at least "
+            "one measured channel (e.g. joint_angle, tip_acceleration)"
+        )
 
 
 def _check_extra_name(key: object, where: str) -> None:
@@ -849,6 +904,7 @@ def _real(value: object, name: str, *, minimum: float | None = None, strict: boo
 
 
 __all__ = [
+    "INPUT_COLUMNS",
     "Dataset",
     "Record",
     "RecordError",

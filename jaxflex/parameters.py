@@ -251,7 +251,8 @@ class ParameterSpace:
             if not np.all(np.isfinite(value)):
                 raise ValueError(f"parameter {spec.name} must be finite, got {value}")
             floor = spec.null if spec.null is not None else 0.0
-            if spec.null is not None and np.any(value < floor):
+            two_sided = spec.null is not None and spec.lower < spec.null  # e.g. an offset
+            if spec.null is not None and not two_sided and np.any(value < floor):
                 raise ValueError(f"parameter {spec.name} must be >= {floor}, got {value}")
             if spec.null is None and np.any(value <= 0.0):
                 raise ValueError(f"parameter {spec.name} must be positive, got {value}")

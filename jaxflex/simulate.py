@@ -48,6 +48,10 @@ class Outputs(eqx.Module):
     tip_deflection: Float[Array, "*batch n"]  # m, w(L) in the hub frame
     root_strain: Float[Array, "*batch n"]  # bending strain at the clamp surface
     joint_torque: Float[Array, "*batch n"]  # torque at the joint after friction, N m
+    # at the model's stations x_k (sensor positions, from the clamp); None without stations
+    station_deflection: Float[Array, "*batch n k"] | None = None  # w(x_k), m
+    station_curvature: Float[Array, "*batch n k"] | None = None  # w''(x_k), 1/m
+    station_acceleration: Float[Array, "*batch n k"] | None = None  # (r + x_k)θ'' + ẅ(x_k)
 
     def channel(self, name: str) -> Array:
         """One output by name (raises a ValueError listing the valid names)."""
@@ -167,6 +171,7 @@ class _ModalSystem(eqx.Module):
     load_modal: Array  # (k, m) modal force of each load shape
     tip: Array  # (m,) w(L) per mode
     root_curvature: Array  # (m,) w''(0) per mode
+    stations: tuple[Array, ...]  # w(x_k) per mode, w''(x_k) per mode: (k, m) each
     shapes: Array  # (n, m) mode shapes, to map back to physical coordinates
     initial: tuple[Array, Array]  # (θ_r, η) at rest under the loads
 
@@ -187,6 +192,7 @@ def _modal_system(model: Model, params: Params, h: float) -> _ModalSystem:
         load_modal=modes.project(loads),
         tip=modes.project(structure.tip),
         root_curvature=modes.project(structure.root_curvature),
+        stations=tuple(modes.project(jnp.asarray(rows)) for rows in model.station_rows()),
         shapes=modes.shapes,
         initial=_rest_under_loads(model, params, structure, modes, loads),
     )
@@ -225,7 +231,7 @@ def simulate_core(
     system = _modal_system(model, params, h)
     maps = system.maps
     p, J = system.hub, system.inertia
-    length = model.testbed.length
+    length = model.testbed.clamp_offset + model.testbed.length  # tip radius from the axis
     thickness = model.testbed.thickness
     w = FRICTION_THETA
     gain = h / J + jnp.sum(p**2 * maps.gv)  # d θ'_{k+1} / d u over one step
@@ -271,7 +277,7 @@ def simulate_core(
         rigid, modal = explicit_forces(theta, vel, vel_r, deta)
         ddeta = p * u + modal - system.damping * deta - system.omega2 * eta
         acc = rigid + u / J + p @ ddeta
-        return (
+        signals = (
             theta,
             length * acc + system.tip @ ddeta,
             vel,
@@ -279,6 +285,16 @@ def simulate_core(
             0.5 * thickness * (system.root_curvature @ eta),
             u,
         )
+        if not model.stations:
+            return signals
+        deflection, curvature = system.stations
+
+        def at(rows, modal):  # row by row, so a station at the tip or clamp rounds as they do
+            return jnp.stack([row @ modal for row in rows])
+
+        radius = jnp.asarray([model.testbed.clamp_offset + x for x in model.stations])
+        acceleration = radius * acc + at(deflection, ddeta)
+        return signals + (at(deflection, eta), at(curvature, eta), acceleration)
 
     fine = jnp.repeat(torque, n_sub)
     fine = model.input_torque(params, fine, h).reshape(torque.shape[0], n_sub)

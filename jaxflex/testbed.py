@@ -11,8 +11,10 @@ import equinox as eqx
 class Testbed(eqx.Module):
     """Fixed (not identified) properties of the arm and the experiment.
 
-    Defaults follow the reference testbed: a 0.5 m aluminium strip, 25 mm × 2 mm, ten Hermite
-    elements, a smooth-Coulomb velocity scale of 0.01 rad/s and 1 kHz sampling of 2 s records.
+    Defaults follow the reference testbed: a 0.5 m aluminium strip, 25 mm × 2 mm, clamped on the
+    joint axis, ten Hermite elements, a smooth-Coulomb velocity scale of 0.01 rad/s and 1 kHz
+    sampling of 2 s records. ``clamp_offset`` is the distance from the joint axis to the clamp
+    (the link's root); ``length`` runs from the clamp to the tip.
     """
 
     length: float = 0.50
@@ -23,11 +25,17 @@ class Testbed(eqx.Module):
     omega_s: float = 0.01
     dt: float = 1e-3
     duration: float = 2.0
+    clamp_offset: float = 0.0
 
     def __check_init__(self) -> None:
         for f in fields(self):
             value = getattr(self, f.name)
-            if isinstance(value, (int, float)) and not (math.isfinite(value) and value > 0):
+            if f.name == "clamp_offset":
+                if not (isinstance(value, (int, float)) and math.isfinite(value) and value >= 0):
+                    raise ValueError(
+                        f"testbed setting clamp_offset={value!r} must be a number >= 0"
+                    )
+            elif isinstance(value, (int, float)) and not (math.isfinite(value) and value > 0):
                 raise ValueError(f"testbed setting {f.name}={value!r} must be a positive number")
         if not isinstance(self.n_elements, int) or self.n_elements < 1:
             raise ValueError(f"testbed setting n_elements={self.n_elements!r} must be an int >= 1")
@@ -49,8 +57,9 @@ class Testbed(eqx.Module):
 
     @property
     def link_inertia(self) -> float:
-        """Inertia of the rigid link about the joint, rho·A·L³/3 (kg m²)."""
-        return self.mass_per_length * self.length**3 / 3.0
+        """Inertia of the rigid link about the joint, rho·A·((r + L)³ − r³)/3 (kg m²)."""
+        r = self.clamp_offset
+        return self.mass_per_length * ((r + self.length) ** 3 - r**3) / 3.0
 
     @property
     def n_samples(self) -> int:

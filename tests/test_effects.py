@@ -33,7 +33,15 @@ from jaxflex.parameters import ParameterSpec, reference_parameters
 from jaxflex.signals import reference_input
 from jaxflex.simulate import OUTPUT_NAMES, simulate, simulate_batch, simulate_core
 
-NAMES = ("delay", "gravity", "motor_lag", "payload", "root_compliance", "stribeck")
+NAMES = (
+    "delay",
+    "gravity",
+    "motor_lag",
+    "payload",
+    "root_compliance",
+    "stribeck",
+    "torque_offset",
+)
 TESTBED = Model().testbed
 DT = TESTBED.dt
 
@@ -365,7 +373,7 @@ def test_gradients_at_the_null_are_finite_nonzero_and_match_finite_differences()
         return _loss(simulate_core(model, {**base, **effect_params}, torque, DT))
 
     value, grads = loss(nulls)
-    assert set(grads) == {"d", "phi", "T_m", "m_p", "J_p", "c_r", "delta_tau_s"}
+    assert set(grads) == {"d", "phi", "T_m", "m_p", "J_p", "c_r", "delta_tau_s", "tau_0"}
     for name, grad in grads.items():
         step = 1e-3 * model.space[name].lower
         difference = (loss({**nulls, name: jnp.asarray(step, dtype=jnp.float64)})[0] - value) / step

@@ -71,3 +71,16 @@ def test_design_notebook(monkeypatch, tmp_path):
     assert "rigid estimate from" in run.text and "active constraints: b_v >= 0" in run.text
     assert "narrower" in run.text and "triangular" in run.text
     assert run.images >= 2  # the design and the interval figures
+
+
+def test_real_rig_notebook(monkeypatch, tmp_path):
+    from jaxflex import datasets
+
+    try:
+        datasets.fetch("quanser_rotflex")
+    except datasets.DataUnavailable as err:
+        pytest.skip(f"real-rig data unavailable: JAXFLEX_DATA_DIR unset and no network ({err})")
+    run = run_notebook("real_rig", monkeypatch, tmp_path)
+    assert "square_wave" in run.text and "random_985" in run.text and "tau_0 = " in run.text
+    assert "black box, order" in run.text
+    assert run.images >= 2  # the two runs, the held-out comparison

@@ -26,6 +26,7 @@ COMMANDS: tuple[str, ...] = (
     "discover",
     "design",
     "demo",
+    "datasets",
 )
 EXIT_OK, EXIT_BUG, EXIT_USAGE, EXIT_INTERRUPTED, EXIT_TERMINATED = 0, 1, 2, 130, 143
 

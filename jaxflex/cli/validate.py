@@ -10,6 +10,7 @@ from __future__ import annotations
 import argparse
 
 from jaxflex.cli import UsageError, load_records
+from jaxflex.cli._arm import add_window_argument, validate_with_arm, with_arm
 from jaxflex.cli._checks import (
     add_max_samples,
     check_directory,
@@ -79,6 +80,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         metavar="S",
         help="accelerometer noise standard deviation (m/s^2), for the noise floor",
     )
+    add_window_argument(p)
+    p.add_argument("--json", metavar="TABLE.json", help="for a fit made with --arm: the scores")
     p.set_defaults(func=run)
 
 
@@ -86,6 +89,10 @@ def run(args: argparse.Namespace) -> int:
     from jaxflex._io import all_or_nothing
 
     model, params, fit = read_fit("--fit", args.fit)
+    if with_arm(fit) is not None:
+        return validate_with_arm(args, fit, model)
+    if args.window is not None or args.json is not None:
+        raise UsageError("--window and --json need a fit made with `jaxflex identify --arm`")
     records = load_records(args.data, resample=args.resample, unit_check=args.unit_check)
     check_size(sum(r.n_samples for r in records), f"{len(records)} record(s)",
                n_elements=model.testbed.n_elements, limit=max_samples(args.max_samples))

@@ -18,6 +18,7 @@ from jaxflex.effects.motor_lag import MotorLag
 from jaxflex.effects.payload import Payload
 from jaxflex.effects.root_compliance import RootCompliance
 from jaxflex.effects.stribeck import Stribeck
+from jaxflex.effects.torque_offset import TorqueOffset
 
 
 def _collect() -> dict[str, type[Effect]]:
@@ -64,6 +65,7 @@ __all__ = [
     "RootCompliance",
     "Stribeck",
     "Structure",
+    "TorqueOffset",
     "get_effect",
     "joint_friction",
     "library",

@@ -1,0 +1,106 @@
+"""Public measurements from real flexible-link rigs, fetched — never copied into the project.
+
+Each data set is one module here: its :class:`Source` (repository, pinned commit, files with
+SHA-256, licence) and a converter from the original files to jaxflex records. The files come from
+a local folder (``data_dir=`` or ``JAXFLEX_DATA_DIR``, laid out as ``<folder>/<data set>/<file>``)
+or, failing that, from the pinned upstream URLs into a user cache (pooch); either way every file
+is checked against its hash. Records carry their source, licence and citation in ``metadata``::
+
+    records = jaxflex.datasets.load("quanser_rotflex")  # {"square_wave": ..., "random_985": ...}
+"""
+
+from __future__ import annotations
+
+import os
+from dataclasses import dataclass
+from pathlib import Path
+from types import ModuleType
+
+from jaxflex.data import Record, save_record
+from jaxflex.datasets import daisy_robot_arm, quanser_2dsfl, quanser_rotflex
+from jaxflex.datasets._source import (
+    CACHE_DIR_VARIABLE,
+    DATA_DIR_VARIABLE,
+    DatasetError,
+    DataUnavailable,
+    Source,
+    cache_dir,
+    fetch_files,
+    local_data_dir,
+)
+
+_MODULES: tuple[ModuleType, ...] = (quanser_rotflex, daisy_robot_arm, quanser_2dsfl)
+
+
+@dataclass(frozen=True)
+class DatasetInfo:
+    """What :func:`available` lists: a data set's name, source and the records it converts to."""
+
+    name: str
+    description: str
+    source: Source
+    records: dict[str, str]
+
+
+DATASETS: dict[str, DatasetInfo] = {
+    m.SOURCE.name: DatasetInfo(m.SOURCE.name, m.SOURCE.description, m.SOURCE, dict(m.RECORDS))
+    for m in _MODULES
+}
+
+
+def _module(name: str) -> ModuleType:
+    for module in _MODULES:
+        if module.SOURCE.name == name:
+            return module
+    raise DatasetError(f"unknown data set {name!r}; data sets: {sorted(DATASETS)}")
+
+
+def available() -> tuple[DatasetInfo, ...]:
+    """Every known data set, in name order."""
+    return tuple(DATASETS[n] for n in sorted(DATASETS))
+
+
+def fetch(name: str, data_dir: str | os.PathLike | None = None) -> dict[str, Path]:
+    """Paths of the original files of data set ``name``, each verified against its SHA-256."""
+    return fetch_files(_module(name).SOURCE, data_dir)
+
+
+def load(name: str, data_dir: str | os.PathLike | None = None) -> dict[str, Record]:
+    """The records of data set ``name``, converted from its verified original files."""
+    module = _module(name)
+    return module.convert(fetch_files(module.SOURCE, data_dir))
+
+
+def write(
+    name: str,
+    out: str | os.PathLike,
+    data_dir: str | os.PathLike | None = None,
+    *,
+    overwrite: bool = False,
+) -> list[Path]:
+    """Write each record of ``name`` as ``out/<record>.csv`` (atomic; existing files refused)."""
+    records = load(name, data_dir)
+    out = Path(out)
+    targets = {r: out / f"{r}.csv" for r in records}
+    existing = [str(p) for p in targets.values() if p.exists()]
+    if existing and not overwrite:
+        raise FileExistsError(f"{existing[0]}: exists; remove it or allow overwriting")
+    out.mkdir(parents=True, exist_ok=True)
+    return [save_record(records[r], p, overwrite=overwrite) for r, p in targets.items()]
+
+
+__all__ = [
+    "CACHE_DIR_VARIABLE",
+    "DATASETS",
+    "DATA_DIR_VARIABLE",
+    "DataUnavailable",
+    "DatasetError",
+    "DatasetInfo",
+    "Source",
+    "available",
+    "cache_dir",
+    "fetch",
+    "load",
+    "local_data_dir",
+    "write",
+]

@@ -1,0 +1,133 @@
+"""Drives: how the logged input signal becomes the torque on the hub.
+
+A drive reads one record column (named after the drive) and acts on the model in two ways:
+the signal is scaled into a torque, and a drive with back-EMF adds a viscous torque that opposes
+the joint velocity. Three drives cover the rigs in the lab:
+
+* :class:`TorqueDrive` — the input *is* the joint torque (N m): the reference testbed;
+* :class:`CurrentDrive` — a current-mode amplifier, ``τ = k_i·i`` (``k_i`` in N m/A, gear
+  ratio and efficiency included);
+* :class:`VoltageDrive` — a DC motor and gearbox driven by a voltage,
+  ``τ = K_g η_g η_m k_t (V − K_g k_m θ')/R_m``. This is exactly a torque drive with input
+  ``g·V`` plus a viscous friction ``g·K_g·k_m·θ'`` (``g = K_g η_g η_m k_t/R_m``), and it is
+  implemented so: the back-EMF is the drive's :attr:`~Drive.damping`.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from typing import ClassVar
+
+import equinox as eqx
+from jaxtyping import Array, Float
+
+
+class Drive(eqx.Module):
+    """Base class: ``τ = gain·signal − damping·θ'``; subclasses define gain and damping.
+
+    ``name`` is the drive's key in an arm file and also the record column it reads.
+    """
+
+    name: ClassVar[str] = "drive"
+    unit: ClassVar[str] = ""
+
+    @property
+    def gain(self) -> float:
+        """Torque per unit of the input signal (N m per unit)."""
+        raise NotImplementedError
+
+    @property
+    def damping(self) -> float:
+        """Viscous torque per unit joint velocity that the drive adds (N m s/rad)."""
+        return 0.0
+
+    def torque(self, signal: Float[Array, " n"]) -> Float[Array, " n"]:
+        """The torque the input signal applies before the drive's damping."""
+        return self.gain * signal
+
+    def settings(self) -> dict[str, float]:
+        """The drive's constants by name (for arm files and reports)."""
+        return {f.name: getattr(self, f.name) for f in dataclasses.fields(self)}
+
+
+def _positive(drive: Drive) -> None:
+    for name, value in drive.settings().items():
+        if not (isinstance(value, (int, float)) and math.isfinite(value) and value > 0):
+            raise ValueError(f"{drive.name} drive: {name}={value!r} must be a positive number")
+
+
+class TorqueDrive(Drive):
+    """The input is the hub torque itself (N m)."""
+
+    name: ClassVar[str] = "torque"
+    unit: ClassVar[str] = "N m"
+
+    @property
+    def gain(self) -> float:
+        return 1.0
+
+    def torque(self, signal: Float[Array, " n"]) -> Float[Array, " n"]:
+        return signal
+
+
+class CurrentDrive(Drive):
+    """A current-mode amplifier: ``τ = torque_per_amp · i``."""
+
+    name: ClassVar[str] = "current"
+    unit: ClassVar[str] = "A"
+    torque_per_amp: float = 1.0  # N m/A at the joint (gear ratio and efficiency included)
+
+    def __check_init__(self) -> None:
+        _positive(self)
+
+    @property
+    def gain(self) -> float:
+        return self.torque_per_amp
+
+
+class VoltageDrive(Drive):
+    """A DC motor and gearbox: ``τ = K_g η_g η_m k_t (V − K_g k_m θ')/R_m``."""
+
+    name: ClassVar[str] = "voltage"
+    unit: ClassVar[str] = "V"
+    resistance: float = 1.0  # R_m, Ω
+    torque_constant: float = 1.0  # k_t, N m/A
+    back_emf_constant: float = 1.0  # k_m, V s/rad
+    gear_ratio: float = 1.0  # K_g
+    gearbox_efficiency: float = 1.0  # η_g
+    motor_efficiency: float = 1.0  # η_m
+
+    def __check_init__(self) -> None:
+        _positive(self)
+
+    @property
+    def gain(self) -> float:
+        """``K_g η_g η_m k_t / R_m`` (N m/V)."""
+        return (
+            self.gear_ratio
+            * self.gearbox_efficiency
+            * self.motor_efficiency
+            * self.torque_constant
+            / self.resistance
+        )
+
+    @property
+    def damping(self) -> float:
+        """The back-EMF as viscous friction, ``gain·K_g·k_m`` (N m s/rad)."""
+        return self.gain * self.gear_ratio * self.back_emf_constant
+
+
+DRIVES: dict[str, type[Drive]] = {d.name: d for d in (TorqueDrive, CurrentDrive, VoltageDrive)}
+"""Drive name (the record column it reads) → class."""
+
+
+def get_drive(name: str, **settings: float) -> Drive:
+    """A drive by name with its constants, e.g. ``get_drive("current", torque_per_amp=8.925)``."""
+    if name not in DRIVES:
+        raise ValueError(f"unknown drive {name!r}; drives: {sorted(DRIVES)}")
+    known = {f.name for f in dataclasses.fields(DRIVES[name])}
+    unknown = sorted(set(settings) - known)
+    if unknown:
+        raise ValueError(f"{name} drive: unknown setting(s) {unknown}; settings: {sorted(known)}")
+    return DRIVES[name](**settings)

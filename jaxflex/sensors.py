@@ -1,0 +1,257 @@
+"""Sensors: each measured channel of a rig, with its output map, calibration and noise model.
+
+A sensor reads one physical quantity of the simulated arm and reports it in the record's
+channel as ``gain · quantity + offset`` (its calibration), with a noise model: a quantisation
+step (encoders, digitisers) and a white-noise level. Link sensors sit at a position ``x`` along
+the link, measured from the clamp; the model computes the deflection, curvature and acceleration
+at those *stations* (:mod:`jaxflex.stations`) as linear maps of its modal state.
+
+* :class:`Encoder` — joint angle, quantised to ``2π/counts_per_revolution``;
+* :class:`Tachometer` — joint velocity;
+* :class:`StrainGauge` at ``x`` — surface bending strain ``(h/2)·w''(x)``, or, calibrated as
+  Quanser's is, the link deflection angle ``α = w(L)/L`` that a static tip load would give:
+  ``α = L²/(3(L − x)) · w''(x)``;
+* :class:`Accelerometer` at ``x`` — ``(r + x)·θ'' + ẅ(x)`` (``r`` the clamp offset);
+* :class:`DeflectionSensor` at ``x`` — ``w(x)`` in the hub frame (a tip laser, a camera).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from collections.abc import Mapping, Sequence
+from typing import ClassVar
+
+import equinox as eqx
+import numpy as np
+from jaxtyping import Array, Float
+
+from jaxflex.model import Model
+from jaxflex.simulate import Outputs
+
+
+class Sensor(eqx.Module):
+    """Base class: one record channel, its calibration (gain, offset) and noise model.
+
+    ``resolution`` is the quantisation step of the logged values (0: none) and ``noise`` the
+    standard deviation of white measurement noise, both in the channel's units.
+    """
+
+    kind: ClassVar[str] = "sensor"
+    unit: ClassVar[str] = ""
+    channel: str = "sensor"
+    gain: float = 1.0
+    offset: float = 0.0
+    noise: float = 0.0
+    resolution: float = 0.0
+
+    def __check_init__(self) -> None:
+        if not isinstance(self.channel, str) or not self.channel.isidentifier():
+            raise ValueError(f"{self.kind}: channel {self.channel!r} must be an identifier")
+        for name in ("gain", "offset", "noise", "resolution"):
+            value = getattr(self, name)
+            if not (isinstance(value, (int, float)) and math.isfinite(value)):
+                raise ValueError(f"{self.kind} {self.channel}: {name}={value!r} must be a number")
+        if self.gain == 0 or self.noise < 0 or self.resolution < 0:
+            raise ValueError(
+                f"{self.kind} {self.channel}: gain must be non-zero, noise and resolution >= 0"
+            )
+
+    @property
+    def position(self) -> float | None:
+        """Position along the link (m from the clamp), or None for a joint sensor."""
+        return None
+
+    def quantity(self, model: Model, outputs: Outputs) -> Float[Array, "*batch n"]:
+        """The physical quantity the sensor responds to, from a simulation of ``model``."""
+        raise NotImplementedError
+
+    def measure(self, model: Model, outputs: Outputs) -> Float[Array, "*batch n"]:
+        """The noise-free reading: ``gain · quantity + offset``."""
+        return self.gain * self.quantity(model, outputs) + self.offset
+
+    @property
+    def noise_std(self) -> float:
+        """Standard deviation of the reading's error: white noise and quantisation (q²/12)."""
+        return math.sqrt(self.noise**2 + self.resolution**2 / 12.0)
+
+    def observe(
+        self, reading: Float[np.ndarray, " n"], rng: np.random.Generator
+    ) -> Float[np.ndarray, " n"]:
+        """A logged reading: white noise added, then quantised to the resolution."""
+        value = np.asarray(reading, dtype=np.float64) + self.noise * rng.standard_normal(
+            np.shape(reading)
+        )
+        return np.round(value / self.resolution) * self.resolution if self.resolution else value
+
+    def simulated_output(self, model: Model) -> tuple[str, float] | None:
+        """``(output, factor)`` when the reading is ``gain·factor·output + offset`` for one of
+        the simulator's standard outputs (:data:`~jaxflex.simulate.OUTPUT_NAMES`), else None."""
+        return None
+
+    def _station(self, model: Model) -> int:
+        if self.position not in model.stations:
+            raise ValueError(
+                f"{self.kind} {self.channel}: the model has no station at x = {self.position!r} "
+                f"m (stations: {list(model.stations)}); build it with Arm.model() or "
+                "with_stations(model, sensors)"
+            )
+        return model.stations.index(self.position)
+
+
+class Encoder(Sensor):
+    """Joint angle (rad) from an incremental encoder of ``counts_per_revolution``.
+
+    Its resolution is one count, ``2π/counts_per_revolution``, unless given (0: ideal).
+    """
+
+    kind: ClassVar[str] = "encoder"
+    unit: ClassVar[str] = "rad"
+    channel: str = "joint_angle"
+    counts_per_revolution: int = 4096
+    resolution: float | None = None  # type: ignore[assignment]
+
+    def __post_init__(self) -> None:
+        if not (isinstance(self.counts_per_revolution, int) and self.counts_per_revolution > 0):
+            raise ValueError(
+                f"encoder {self.channel}: counts_per_revolution={self.counts_per_revolution!r} "
+                "must be a positive whole number"
+            )
+        if self.resolution is None:
+            object.__setattr__(self, "resolution", 2 * math.pi / self.counts_per_revolution)
+
+    def quantity(self, model: Model, outputs: Outputs) -> Array:
+        return outputs.joint_angle
+
+    def simulated_output(self, model: Model) -> tuple[str, float]:
+        return "joint_angle", 1.0
+
+
+class Tachometer(Sensor):
+    """Joint velocity (rad/s)."""
+
+    kind: ClassVar[str] = "tachometer"
+    unit: ClassVar[str] = "rad/s"
+    channel: str = "joint_velocity"
+
+    def quantity(self, model: Model, outputs: Outputs) -> Array:
+        return outputs.joint_velocity
+
+    def simulated_output(self, model: Model) -> tuple[str, float]:
+        return "joint_velocity", 1.0
+
+
+class _LinkSensor(Sensor):
+    """A sensor on the link at ``x`` metres from the clamp."""
+
+    x: float = 0.0
+
+    def __check_init__(self) -> None:
+        super().__check_init__()
+        if not (isinstance(self.x, float) and math.isfinite(self.x) and self.x >= 0):
+            raise ValueError(f"{self.kind} {self.channel}: x={self.x!r} must be a float >= 0 (m)")
+
+    @property
+    def position(self) -> float:
+        return self.x
+
+
+class StrainGauge(_LinkSensor):
+    """Bending strain at the surface at ``x`` (``calibration="strain"``), or the link deflection
+    angle (rad) that Quanser's calibration reports (``calibration="deflection_angle"``)."""
+
+    kind: ClassVar[str] = "strain_gauge"
+    channel: str = "strain"
+    calibration: str = "strain"
+
+    def __check_init__(self) -> None:
+        super().__check_init__()
+        if self.calibration not in ("strain", "deflection_angle"):
+            raise ValueError(
+                f"strain_gauge {self.channel}: calibration={self.calibration!r} must be "
+                "'strain' or 'deflection_angle'"
+            )
+
+    @property
+    def unit(self) -> str:  # type: ignore[override]
+        return "rad" if self.calibration == "deflection_angle" else "1"
+
+    def scale(self, model: Model) -> float:
+        """Reading per unit curvature: ``h/2`` (strain) or ``L²/(3(L − x))`` (angle)."""
+        tb = model.testbed
+        if self.calibration == "strain":
+            return 0.5 * tb.thickness
+        if self.x >= tb.length:
+            raise ValueError(f"strain_gauge {self.channel}: a gauge at the tip reads no strain")
+        return tb.length**2 / (3.0 * (tb.length - self.x))
+
+    def quantity(self, model: Model, outputs: Outputs) -> Array:
+        k = self._station(model)
+        return self.scale(model) * outputs.station_curvature[..., k]
+
+    def simulated_output(self, model: Model) -> tuple[str, float] | None:
+        if self.x != 0.0:
+            return None
+        return "root_strain", self.scale(model) / (0.5 * model.testbed.thickness)
+
+
+class Accelerometer(_LinkSensor):
+    """Transverse acceleration (m/s²) at ``x``: ``(r + x)·θ'' + ẅ(x)``."""
+
+    kind: ClassVar[str] = "accelerometer"
+    unit: ClassVar[str] = "m/s^2"
+    channel: str = "acceleration"
+
+    def quantity(self, model: Model, outputs: Outputs) -> Array:
+        k = self._station(model)
+        return outputs.station_acceleration[..., k]
+
+    def simulated_output(self, model: Model) -> tuple[str, float] | None:
+        return ("tip_acceleration", 1.0) if self.x == model.testbed.length else None
+
+
+class DeflectionSensor(_LinkSensor):
+    """Link deflection ``w(x)`` (m) in the frame that turns with the hub."""
+
+    kind: ClassVar[str] = "deflection"
+    unit: ClassVar[str] = "m"
+    channel: str = "tip_deflection"
+
+    def quantity(self, model: Model, outputs: Outputs) -> Array:
+        k = self._station(model)
+        return outputs.station_deflection[..., k]
+
+    def simulated_output(self, model: Model) -> tuple[str, float] | None:
+        return ("tip_deflection", 1.0) if self.x == model.testbed.length else None
+
+
+SENSORS: dict[str, type[Sensor]] = {
+    s.kind: s for s in (Encoder, Tachometer, StrainGauge, Accelerometer, DeflectionSensor)
+}
+"""Sensor kind (its ``type`` in an arm file) → class."""
+
+
+def stations(sensors: Sequence[Sensor]) -> tuple[float, ...]:
+    """The link positions the sensors need, sorted, each once."""
+    return tuple(sorted({s.position for s in sensors if s.position is not None}))
+
+
+def with_stations(model: Model, sensors: Sequence[Sensor]) -> Model:
+    """``model`` with a station at every link sensor's position."""
+    return dataclasses.replace(model, stations=stations(sensors))
+
+
+def readings(
+    sensors: Sequence[Sensor], model: Model, outputs: Outputs, channels: Sequence[str] | None = None
+) -> dict[str, Array]:
+    """Noise-free readings by channel (all sensors, or those whose channel is in ``channels``).
+
+    A record may hold any subset of an arm's sensors: pass its columns as ``channels``.
+    """
+    chosen = [s for s in sensors if channels is None or s.channel in channels]
+    return {s.channel: s.measure(model, outputs) for s in chosen}
+
+
+def noise_levels(sensors: Sequence[Sensor]) -> Mapping[str, float]:
+    """Each channel's measurement-noise standard deviation (white noise and quantisation)."""
+    return {s.channel: s.noise_std for s in sensors}

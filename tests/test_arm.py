@@ -1,0 +1,181 @@
+"""Arms: arm files describe a rig completely; errors name the file and key; reference = today."""
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from jaxflex import Model, identify, make_records, reference_parameters, simulate
+from jaxflex.arm import Arm, ArmError, arm_from_dict, load_arm
+from jaxflex.drives import VoltageDrive
+from jaxflex.sensors import with_stations
+from jaxflex.signals import reference_input
+from jaxflex.simulate import OUTPUT_NAMES
+
+ARMS = Path(__file__).parent.parent / "arms"
+REFERENCE = ARMS / "reference.toml"
+BED = Model().testbed  # the reference testbed
+
+
+def test_reference_arm_file_is_exactly_the_reference_testbed():
+    arm = load_arm(REFERENCE)
+    assert Arm().model() == Model()
+    assert arm.model() == with_stations(Model(), arm.sensors) and arm.model().stations == (0.5,)
+    assert [s.channel for s in arm.sensors] == ["joint_angle", "tip_acceleration"]
+    assert arm.fixed == () and arm.source == str(REFERENCE)
+    ref = reference_parameters()
+    assert {k: float(v) for k, v in arm.reference_parameters().items()} == {
+        k: float(v) for k, v in ref.items()
+    }
+    torque = reference_input("pulse")[1]
+    today, from_file = simulate(Model(), ref, torque), simulate(arm.model(), ref, torque)
+    for name in OUTPUT_NAMES:
+        np.testing.assert_array_equal(getattr(from_file, name), getattr(today, name))
+
+
+def test_reference_arm_file_reproduces_a_fit_bit_for_bit():
+    records = make_records(inputs=("pulse",), noise=False)
+    kwargs = dict(generations=2, population=12, refine=False, intervals=False, seed=3)
+    today = identify(records, **kwargs)
+    from_file = identify(records, load_arm(REFERENCE).model(), **kwargs)
+    assert from_file.params == today.params
+    np.testing.assert_array_equal(from_file.history.best, today.history.best)
+
+
+def test_rotflex_arm_file_holds_the_rig_constants():
+    arm = load_arm(ARMS / "quanser_rotflex.toml")
+    tb = arm.testbed
+    assert (tb.length, tb.width, tb.thickness, tb.density) == (0.419, 0.02083, 0.0008128, 7850.0)
+    assert isinstance(arm.drive, VoltageDrive)
+    # the README's numbers: tau = 0.1284 V - 0.0690 theta'
+    assert arm.drive.gain == pytest.approx(0.1284, abs=5e-5)
+    assert arm.drive.damping == pytest.approx(0.0690, abs=5e-5)
+    space = arm.space
+    assert space["E"].reference == 2.0e11 and space["J_h"].reference == 0.0021
+    assert space["E"].lower <= 70e9 and space["E"].upper >= 210e9  # aluminium ... steel
+
+
+def _arm_text(**replace: str) -> str:
+    """The reference arm file with some lines replaced (key → new line, '' deletes it).
+
+    ``top`` is a line put before the first table, ``extra`` one appended at the end.
+    """
+    lines = REFERENCE.read_text().splitlines()
+    out = [replace.pop("top", "")]
+    for line in lines:
+        key = line.split("=")[0].strip()
+        out.append(replace.pop(key) if key in replace else line)
+    return "\n".join(out + list(replace.values())) + "\n"
+
+
+@pytest.mark.parametrize(
+    ("changes", "message"),
+    [
+        ({"width": "widht = 0.025"}, "link.width: missing value (is 'link.widht' a misspelling?)"),
+        ({"extra": "[sensor]"}, "sensor: unknown key; did you mean 'sensors'?"),
+        ({"extra": "[drives]"}, "drives: unknown key; did you mean 'drive'?"),
+        ({"top": "colour = 'red'"}, "colour: unknown key; known keys: ['description', "),
+        ({"clamp_offset": "clamp_offst = 0.0"}, "link.clamp_offst: unknown key; did you mean"),
+        ({"length": 'length = "half a metre"'},
+         "link.length: expected a number, got 'half a metre' (a string)"),
+        ({"length": "length = -0.5"}, "link.length: expected a positive number, got -0.5"),
+        ({"n_elements": "n_elements = 2.5"}, "simulation.n_elements: expected a whole number"),
+        ({"E": "E = { reference = 2e11, lower = 20e9, upper = 100e9 }"},
+         "parameters.E: bounds [20000000000.0, 100000000000.0] exclude the reference value "
+         "200000000000.0"),
+        ({"J_h": "J_h = { reference = 0.0053, lower = 1e-3 }"},
+         "parameters.J_h.upper: missing value"),
+        ({"beta": ""}, "parameters.beta: missing value"),
+        ({"tau_c": "tau_c = { reference = 0.1, lower = 1e-3, upper = 0.2, fixd = true }"},
+         "parameters.tau_c.fixd: unknown key; did you mean 'fixed'?"),
+        ({"type": 'type = "hydraulic"'}, "drive.type: unknown drive 'hydraulic'; drives: "
+         "['current', 'torque', 'voltage']"),
+        ({"type": 'type = "current"'}, "drive.torque_per_amp: missing value"),
+        ({"density": "density = 2700.0\nmass = 0.0675"},
+         "link.density: give exactly one of density"),
+        ({"name": "name = 3"}, "name: expected a string, got 3 (int)"),
+        ({"top": "effects = ['gravty']"}, "effects[0]: unknown effect 'gravty'"),
+    ],
+)
+def test_arm_file_errors_are_one_line_naming_file_and_key(tmp_path, changes, message):
+    path = tmp_path / "arm.toml"
+    path.write_text(_arm_text(**changes))
+    with pytest.raises(ArmError) as info:
+        load_arm(path)
+    text = str(info.value)
+    assert text.startswith(f"{path}: ") and "\n" not in text
+    assert message in text
+
+
+def test_broken_toml_and_missing_file(tmp_path):
+    path = tmp_path / "arm.toml"
+    path.write_text("[link\nlength = 1\n")
+    with pytest.raises(ArmError, match=rf"^{path}: not valid TOML \("):
+        load_arm(path)
+    with pytest.raises(ArmError, match=r"nope.toml: arm file not found$"):
+        load_arm(tmp_path / "nope.toml")
+
+
+def test_mass_per_length_or_mass_instead_of_density(tmp_path):
+    rho_a = 2700.0 * 0.025 * 0.002
+    for line in (f"mass_per_length = {rho_a!r}", f"mass = {rho_a * 0.5!r}"):
+        path = tmp_path / "arm.toml"
+        path.write_text(_arm_text(density=line))
+        assert load_arm(path).testbed.mass_per_length == pytest.approx(rho_a, rel=1e-15)
+
+
+def test_fixed_parameters_and_effects(tmp_path):
+    path = tmp_path / "arm.toml"
+    path.write_text(
+        _arm_text(
+            b_v="b_v = { reference = 0.5, fixed = true }",  # outside the library's bounds
+            top='effects = ["gravity"]',
+        )
+    )
+    arm = load_arm(path)
+    assert arm.fixed == ("b_v",) and arm.fixed_values == {"b_v": 0.5}
+    assert arm.space["b_v"].lower <= 0.5 <= arm.space["b_v"].upper
+    model = arm.model()
+    assert model.effect_names == ("gravity",) and model.space.names[-1] == "phi"
+
+
+def test_arm_from_dict_without_a_file():
+    data = {
+        "name": "steel",
+        "link": {"length": 1.0, "width": 0.05, "thickness": 0.005, "density": 7850.0},
+        "parameters": {
+            n: {"reference": s.reference, "lower": s.lower, "upper": s.upper}
+            for n, s in ((s.name, s) for s in Model().base)
+        },
+        "drive": {"type": "current", "torque_per_amp": 8.925},
+    }
+    arm = arm_from_dict(data)
+    assert arm.testbed == BED.replace(length=1.0, width=0.05, thickness=0.005, density=7850.0)
+    assert arm.drive.gain == 8.925 and arm.source == "arm"
+    data["parameters"]["E"]["lower"] = -1.0
+    with pytest.raises(ArmError, match=r"^arm: parameters.E.lower: expected a positive number"):
+        arm_from_dict(data)
+
+
+def test_clamp_offset_moves_the_link_away_from_the_axis():
+    """Offset r: rigid inertia ρA((r+L)³ − r³)/3 and θ–q coupling ∫ρA (r + x) w dx."""
+    r, tb = 0.04, BED
+    params = reference_parameters()
+    near = Model(BED).structure(params)
+    far = Model(BED.replace(clamp_offset=r)).structure(params)
+    rho_a, length = tb.mass_per_length, tb.length
+    expected = float(params["J_h"]) + rho_a * ((r + length) ** 3 - r**3) / 3
+    assert float(far.mass[0, 0]) == pytest.approx(expected, rel=1e-14)
+    assert BED.replace(clamp_offset=r).link_inertia == pytest.approx(expected - 0.0053, rel=1e-14)
+    # the clamped deflection w = x² is represented exactly by the Hermite elements
+    x = np.linspace(0.0, length, tb.n_elements + 1)[1:]
+    q = np.zeros(1 + 2 * tb.n_elements)
+    q[1::2], q[2::2] = x**2, 2 * x
+    coupling = rho_a * (r * length**3 / 3 + length**4 / 4)
+    assert float(far.mass[0, 1:] @ q[1:]) == pytest.approx(coupling, rel=1e-13)
+    assert float(far.mass[1:, 0] @ q[1:]) == pytest.approx(coupling, rel=1e-13)
+    np.testing.assert_array_equal(far.mass[1:, 1:], near.mass[1:, 1:])
+    np.testing.assert_array_equal(far.stiffness, near.stiffness)
+    assert float(far.first_moment[0]) == pytest.approx(rho_a * (r * length + length**2 / 2))
+    with pytest.raises(ValueError, match="clamp_offset=-0.01 must be a number >= 0"):
+        BED.replace(clamp_offset=-0.01)

@@ -1,0 +1,61 @@
+"""``identify --arm`` and ``validate`` on a rig's records as logged (the CLI contract)."""
+
+import json
+
+import pytest
+from test_arm import ARMS
+from test_datasets import REAL_DATA_DIR
+
+from jaxflex import datasets
+from jaxflex.cli import main
+
+
+@pytest.fixture(scope="module")
+def rotflex_csv(tmp_path_factory):
+    out = tmp_path_factory.mktemp("rotflex")
+    try:
+        datasets.write("quanser_rotflex", out, REAL_DATA_DIR)
+    except datasets.DataUnavailable as err:
+        pytest.skip(f"real-rig data unavailable: JAXFLEX_DATA_DIR unset and no network ({err})")
+    return out
+
+
+def test_identify_with_an_arm_then_validate_every_record(rotflex_csv, tmp_path, capsys):
+    fit = tmp_path / "fit.json"
+    args = ["identify", str(rotflex_csv / "square_wave.csv"), "--arm",
+            str(ARMS / "quanser_rotflex.toml"), "--generations", "2", "--population", "8",
+            "--no-refine", "--quiet", "--out", str(fit)]
+    assert main(args) == 0
+    saved = json.loads(fit.read_text())
+    assert saved["settings"]["arm"] == str((ARMS / "quanser_rotflex.toml").resolve())
+    table = tmp_path / "table.json"
+    data = [str(rotflex_csv / "square_wave.csv"), str(rotflex_csv / "random_985.csv")]
+    assert main(["validate", *data, "--fit", str(fit), "--json", str(table)]) == 0
+    rows = json.loads(table.read_text())["records"]
+    assert [(r["name"], r["role"]) for r in rows] == [
+        ("square_wave", "fit"), ("random_985", "held-out")
+    ]
+    for row in rows:
+        assert set(row["nrmse"]) == {"joint_angle", "deflection_angle"}
+        assert all(value > 0 for value in row["nrmse"].values())
+    capsys.readouterr()
+    window = ["validate", data[1], "--fit", str(fit), "--window", "10:20"]
+    assert main(window) == 2
+    err = capsys.readouterr().err
+    assert "does not start at rest at t = 10.0 s" in err and "(--window T0:T1)" in err
+    assert main([*window[:-1], "20"]) == 2
+    assert "--window '20': expected T0:T1" in capsys.readouterr().err
+
+
+def test_arm_options_are_checked(rotflex_csv, tmp_path, capsys):
+    data = str(rotflex_csv / "square_wave.csv")
+    out = str(tmp_path / "fit.json")
+    assert main(["identify", data, "--window", "0:1", "--out", out]) == 2
+    assert "--window needs --arm" in capsys.readouterr().err
+    bad = tmp_path / "arm.toml"
+    bad.write_text((ARMS / "quanser_rotflex.toml").read_text().replace("width =", "widht ="))
+    assert main(["identify", data, "--arm", str(bad), "--out", out]) == 2
+    assert f"{bad}: link.width: missing value" in capsys.readouterr().err
+    reference = str(ARMS / "reference.toml")
+    assert main(["identify", data, "--arm", reference, "--out", out]) == 2
+    assert "logs 'voltage' but arm 'reference' has a torque drive" in capsys.readouterr().err
