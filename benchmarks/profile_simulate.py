@@ -3,7 +3,7 @@
 Measures what limits the simulator's throughput (``benchmarks/simulate.py`` reports the
 throughput itself): the number of XLA kernels inside the compiled time loop, and the run time
 of a plain one-device vmap (best of 5) as the population, the number of finite elements and the
-number of friction Newton iterations change. A straight-line fit of time against population
+cap on the friction solve's iterations change. A straight-line fit of time against population
 separates the fixed cost of a step (kernel launches) from the cost per candidate.
 Writes ``benchmarks/results/profile_simulate.json``.
 """
