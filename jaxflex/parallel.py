@@ -122,25 +122,37 @@ def population_vmap(fn: Callable[..., T], population, *args) -> T:
     its first candidate) to a multiple of the device count, each device computes its share,
     :data:`BLOCK` candidates at a time, and the results (those of the plain vmap) are gathered
     onto every device. Works inside ``jit`` and outside it.
+
+    Every candidate's result is the same bits on any number of devices from two up: the work
+    always runs as the body of a ``shard_map``, candidates never interact (no reduction crosses
+    them), and a population too small to split is computed whole on every device rather than in
+    a program of another kind. A one-device process compiles the body as part of one ordinary
+    program, which XLA may round differently in the last ulp.
     """
     devices = population_devices()
     size = _population_size(population)
-    if len(devices) == 1 or size < MIN_PER_DEVICE * len(devices):
-        return _blockwise(fn, population, *args)
-    pad = -size % len(devices)
+    split = len(devices) > 1 and size >= MIN_PER_DEVICE * len(devices)
+    pad = -size % len(devices) if split else 0
     if pad:
         population = jax.tree.map(
             lambda x: jnp.concatenate([x, jnp.broadcast_to(x[:1], (pad, *x.shape[1:]))]),
             population,
         )
-    split = jax.shard_map(
-        lambda population, *args: _blockwise(fn, population, *args),
+    spec = PartitionSpec(AXIS) if split else PartitionSpec()
+
+    def share(population, *args):
+        # the barriers keep each device's work a program of its own on one device as on several
+        population, args = jax.lax.optimization_barrier((population, args))
+        return jax.lax.optimization_barrier(_blockwise(fn, population, *args))
+
+    body = jax.shard_map(
+        share,
         mesh=_mesh(),
-        in_specs=(PartitionSpec(AXIS),) + (PartitionSpec(),) * len(args),
-        out_specs=PartitionSpec(AXIS),
+        in_specs=(spec,) + (PartitionSpec(),) * len(args),
+        out_specs=spec,
         check_vma=False,
     )
-    return gathered(jax.tree.map(lambda y: y[:size], split(population, *args)))
+    return gathered(jax.tree.map(lambda y: y[:size], jax.jit(body)(population, *args)))
 
 
 __all__ = [

@@ -7,15 +7,17 @@ hold) and does three things:
    ``η'' + c η' + ω² η = g`` for constant ``g`` (closed form, robust from undamped to heavily
    overdamped modes) and the rigid rotation with the exact double integrator — so stiff FEM modes
    cost nothing in accuracy or stability;
-2. solves the joint torque ``u = τ − f(θ'_{k+1})`` implicitly (backward Euler in the friction
-   only) by a safeguarded scalar Newton iteration: the end-of-step joint velocity is affine in
-   ``u``, so the stiff smooth-Coulomb law near zero velocity stays stable at any step;
+2. solves the joint torque ``u = τ − f(θ'_{k+1})`` implicitly (a θ-method in the friction
+   only) by a safeguarded scalar Newton iteration converged to round-off in every step (stick
+   phases included, with a convergence test, not a fixed count): the end-of-step joint velocity
+   is affine in ``u``, so the stiff smooth-Coulomb law near zero velocity stays stable at any
+   step, and the result does not depend on how a compiler rounds the iterations;
 3. applies the weak rank-one mass-damping coupling and position-dependent loads (gravity)
    explicitly from the start of the step.
 
 Outputs are taken at the sample instants with the new torque sample (the right-hand limit).
-Gradients of the Newton solve use the implicit-function theorem (one differentiable Newton step
-at the converged root), so reverse mode does not store the iterations.
+Gradients of the friction solve use the implicit-function theorem (:func:`jax.lax.custom_root`),
+so reverse mode does not store the iterations.
 """
 
 from __future__ import annotations
@@ -33,7 +35,10 @@ from jaxflex.model import Model
 from jaxflex.parallel import population_vmap
 from jaxflex.parameters import Params
 
-NEWTON_ITERATIONS = 8
+MAX_FRICTION_ITERATIONS = 100
+"""Upper bound on the friction solve's iterations (it stops at round-off, usually within a few)."""
+RESIDUAL_ULPS = 16.0
+"""The friction residual counts as converged within this many ulps of its terms."""
 SCAN_UNROLL = 1
 #: Weight of the end-of-step friction (θ-method): 0.5 is trapezoidal, 1 backward Euler.
 FRICTION_THETA = 0.55
@@ -131,31 +136,65 @@ def oscillator_step(omega: Array, damping: Array, h: float) -> _StepMaps:
     )
 
 
-def _joint_velocity_solve(friction, target: Array, gain: Array, guess: Array) -> Array:
-    """Solve ``v + gain·f(v) = target`` for the end-of-step joint velocity ``v``.
+def _bracketed_newton(residual, lo: Array, hi: Array, guess: Array) -> tuple[Array, Array]:
+    """Root of the increasing scalar ``residual`` in ``[lo, hi]``, converged to round-off.
 
-    ``f`` is any friction law with ``f(0) = 0`` and ``sign f(v) = sign v``, so the root lies
-    between 0 and ``target``; Newton steps that leave that bracket fall back to bisection.
-    The iterations are unrolled (a fixed, small count) so XLA fuses them with the step.
+    ``residual(v)`` returns ``(r, slope, scale)``, ``scale`` being the size of the terms that
+    make up ``r`` (its round-off is a few ulps of it). Newton steps that leave the bracket fall
+    back to bisection, so every iteration shrinks it; the loop stops when the residual is at
+    round-off, the Newton step is below an ulp of ``v`` or the bracket has collapsed, and after
+    :data:`MAX_FRICTION_ITERATIONS` at the latest. Returns the root and the iterations taken.
     """
+    eps = jnp.finfo(jnp.result_type(guess)).eps
 
-    def residual_and_slope(v):
-        f, df = jax.jvp(friction, (v,), (jnp.ones_like(v),))
-        return v + gain * f - target, 1.0 + gain * df
-
-    lo = jnp.minimum(0.0, target)
-    hi = jnp.maximum(0.0, target)
-    v = jnp.clip(guess, lo, hi)
-    v, lo, hi = jax.lax.stop_gradient((v, lo, hi))
-    for _ in range(NEWTON_ITERATIONS):
-        r, slope = jax.lax.stop_gradient(residual_and_slope(v))
+    def step(carry):
+        v, lo, hi, converged, count = carry
+        # one value of each quantity for every use below (XLA could otherwise recompute the
+        # residual in several fused kernels that round differently and never agree)
+        r, slope, scale = jax.lax.optimization_barrier(residual(v))
         lo = jnp.where(r < 0.0, v, lo)
         hi = jnp.where(r > 0.0, v, hi)
         newton = v - r / jnp.where(slope > 0.0, slope, 1.0)
         ok = (slope > 0.0) & (newton > lo) & (newton < hi)
-        v = jnp.where(ok, newton, 0.5 * (lo + hi))
-    r, slope = residual_and_slope(v)
-    return v - r / jax.lax.stop_gradient(slope)  # implicit-function gradient
+        new = jnp.where(ok, newton, 0.5 * (lo + hi))
+        done = (
+            converged  # a converged lane stays put: batched loops run until every lane is done
+            | (jnp.abs(r) <= RESIDUAL_ULPS * eps * scale)
+            | (jnp.abs(new - v) <= eps * jnp.abs(v))
+            | (hi - lo <= eps * jnp.maximum(jnp.abs(lo), jnp.abs(hi)))
+        )
+        return jnp.where(done, v, new), lo, hi, done, count + 1
+
+    def running(carry):
+        return ~carry[3] & (carry[4] < MAX_FRICTION_ITERATIONS)
+
+    start = (jnp.clip(guess, lo, hi), lo, hi, jnp.zeros_like(guess, dtype=bool), jnp.zeros((), int))
+    v, _, _, _, count = jax.lax.while_loop(running, step, start)
+    return v, count
+
+
+def _joint_velocity_solve(friction, target: Array, gain: Array, guess: Array) -> Array:
+    """Solve ``v + gain·f(v) = target`` for the end-of-step joint velocity ``v``.
+
+    ``f`` is any friction law with ``f(0) = 0`` and ``sign f(v) = sign v``, so the root lies
+    between 0 and ``target``; a safeguarded Newton iteration converges it to round-off
+    (:func:`_bracketed_newton`), stick phases included. Gradients follow from the implicit-function
+    theorem (:func:`jax.lax.custom_root`), so reverse mode stores no iterations.
+    """
+
+    def residual(v):
+        return v + gain * friction(v) - target
+
+    def solve(residual, guess):
+        def with_slope(v):
+            f, df = jax.jvp(friction, (v,), (jnp.ones_like(v),))
+            scale = jnp.abs(v) + jnp.abs(gain * f) + jnp.abs(target)
+            return v + gain * f - target, 1.0 + gain * df, scale
+
+        lo, hi = jnp.minimum(0.0, target), jnp.maximum(0.0, target)
+        return _bracketed_newton(with_slope, lo, hi, guess)[0]
+
+    return jax.lax.custom_root(residual, guess, solve, lambda g, y: y / g(1.0))
 
 
 class _ModalSystem(eqx.Module):

@@ -37,7 +37,7 @@ def designed():
 @pytest.fixture(scope="module")
 def tight():
     """Limits tight enough that the angle/speed scaling is what holds the torque down."""
-    return design_input(**FAST, max_angle=0.15, max_speed=0.8, seed=1)
+    return design_input(**FAST, max_angle=0.15, max_speed=0.8, seed=0)
 
 
 def test_criterion_history_is_monotone_and_improves(designed):

@@ -86,3 +86,41 @@ def test_device_count_setting_is_validated(monkeypatch):
         default_host_devices()
     monkeypatch.setenv("JAXFLEX_HOST_DEVICES", "5")
     assert default_host_devices() == 5
+
+
+DEVICE_COUNT_CHECKS = textwrap.dedent(
+    """
+    import hashlib
+    import equinox as eqx, numpy as np
+    from jaxflex import make_records
+    from jaxflex.evolve import DE, run
+    from jaxflex.objective import build_objective
+
+    objective = build_objective(make_records(noise=False, duration=0.3))
+    fitness = eqx.filter_jit(lambda o, x: o.fitness(x))
+    digest = hashlib.sha256()
+    for size in (8, 20, 40, 100):  # unsplit on some device counts, split on others
+        population = np.random.default_rng(size).uniform(size=(size, len(objective.names)))
+        digest.update(np.asarray(fitness(objective, population)).tobytes())
+    result = run(DE.paper(population=40), objective.fitness, len(objective.names), seed=3,
+                 generations=4)
+    digest.update(np.asarray(result.best_x).tobytes())
+    digest.update(np.asarray(result.history_best).tobytes())
+    print(digest.hexdigest())
+    """
+)
+
+
+def test_fitness_and_de_are_bit_identical_on_two_and_three_devices():
+    """Per-candidate costs do not depend on how the population is split (or whether it is):
+    fitness of several population sizes and a whole DE run hash to the same bytes."""
+    digests = []
+    for devices in ("2", "3"):
+        env = {**os.environ, "JAXFLEX_HOST_DEVICES": devices, "JAX_PLATFORMS": "cpu"}
+        result = subprocess.run(
+            [sys.executable, "-c", DEVICE_COUNT_CHECKS],
+            env=env, capture_output=True, text=True, timeout=300,
+        )
+        assert result.returncode == 0, result.stderr[-3000:]
+        digests.append(result.stdout.split()[-1])
+    assert digests[0] == digests[1]

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import sys
+
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -215,3 +217,52 @@ def test_bad_inputs_are_named():
         Testbed().replace(lenght=0.4)
     with pytest.raises(ValueError, match="n_substeps"):
         Model(n_substeps=0)
+
+
+def _base_friction(v):
+    return float(REFERENCE["b_v"]) * v + float(REFERENCE["tau_c"]) * jnp.tanh(v / 0.01)
+
+
+@pytest.mark.parametrize("target", [1e-9, -3e-4, 0.004, 0.02, 0.5, -2.0])
+@pytest.mark.parametrize("guess_share", [0.0, 0.5, 1.0])
+def test_friction_solve_converges_to_round_off(target, guess_share):
+    """Stuck (|v| ≪ ω_s) to sliding: the root equals SciPy's brentq at full precision, from any
+    start in the bracket, alone and vmapped, with the implicit-function derivative."""
+    gain = 0.05
+    simulator = sys.modules["jaxflex.simulate"]
+
+    def solve(target, guess):
+        return simulator._joint_velocity_solve(_base_friction, target, gain, guess)
+
+    root = float(solve(jnp.float64(target), jnp.float64(guess_share * target)))
+    expected = brentq(
+        lambda v: v + gain * float(_base_friction(v)) - target,
+        min(0.0, target), max(0.0, target), xtol=1e-300, rtol=4 * np.finfo(float).eps,
+    )
+    assert root == pytest.approx(expected, rel=1e-14, abs=0)
+    targets = jnp.asarray([target, 0.1, -1e-5, target])
+    batched = jax.vmap(solve)(targets, guess_share * targets)
+    assert float(batched[0]) == pytest.approx(root, rel=1e-14, abs=0)
+    assert float(batched[3]) == pytest.approx(root, rel=1e-14, abs=0)
+    slope = 1.0 + gain * float(jax.grad(_base_friction)(root))
+    assert float(jax.grad(solve)(jnp.float64(target), 0.0)) == pytest.approx(1 / slope, rel=1e-12)
+
+
+def test_friction_solve_stops_well_before_its_limit():
+    """Few iterations from a start near the root; never the safety limit from a poor one."""
+    simulator = sys.modules["jaxflex.simulate"]
+    gain = 0.05
+
+    def with_slope(target):
+        def residual(v):
+            f, df = jax.jvp(_base_friction, (v,), (1.0,))
+            return v + gain * f - target, 1.0 + gain * df, abs(v) + abs(gain * f) + abs(target)
+
+        return residual
+
+    for target in (1e-9, 3e-4, 0.02, 0.5, 5.0):
+        for guess in (0.0, target):
+            _, count = simulator._bracketed_newton(with_slope(target), 0.0, target, guess)
+            assert int(count) < simulator.MAX_FRICTION_ITERATIONS // 2, (target, guess, count)
+        _, count = simulator._bracketed_newton(with_slope(target), 0.0, target, 0.999 * target)
+        assert int(count) <= 12, (target, count)
