@@ -25,7 +25,7 @@ configure_host_devices()
 from jaxflex.compare import Comparison, compare, fit_and_validate, noise_floor  # noqa: E402
 from jaxflex.data import Dataset, Record, load_dataset, load_record, save_record  # noqa: E402
 from jaxflex.design import DesignResult, design_input, predicted_intervals  # noqa: E402
-from jaxflex.diagnose import Diagnosis, diagnose  # noqa: E402
+from jaxflex.diagnosis import Diagnosis, diagnose  # noqa: E402
 from jaxflex.discover import (  # noqa: E402
     DiscoveryReport,
     add_effect,

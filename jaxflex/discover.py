@@ -39,7 +39,7 @@ Score (Lagrange-multiplier) test
     Any effect class with a ``grid()`` is profiled the same way.
 
 The loop (:func:`discover`)
-    Fit the base model; then repeat: diagnose the residuals (:mod:`jaxflex.diagnose`), score-test
+    Fit the base model; then repeat: diagnose the residuals (:mod:`jaxflex.diagnosis`), score-test
     every candidate not yet in the model (significant at ``alpha/m``, Bonferroni over the ``m``
     candidates), refit the best few (warm start, a 1-D profile of the new parameters, then
     Levenberg–Marquardt of all), confirm each by the likelihood-ratio test ``LR = C₀ − C₁`` at
@@ -75,9 +75,7 @@ from jaxflex._io import provenance, to_jsonable
 from jaxflex._progress import Progress
 from jaxflex.compare import DEFAULT_T_END, FRFSettings, _compare_record
 from jaxflex.data import Dataset, Record
-from jaxflex.diagnose import (
-    CHANNELS,
-    UNITS,
+from jaxflex.diagnosis import (
     Diagnosis,
     Noise,
     NoiseLevel,
@@ -86,6 +84,7 @@ from jaxflex.diagnose import (
     estimate_noise,
     noise_levels,
 )
+from jaxflex.diagnosis.noise import CHANNELS, UNITS
 from jaxflex.effects import Effect, get_effect, library
 from jaxflex.effects._base import Structure
 from jaxflex.model import Model
@@ -630,7 +629,7 @@ class _Engine:
               params: Mapping[str, float], noise: Noise | None) -> _Engine:
         """The engine testing ``candidates`` on ``model``; the channels' noise levels are the
         given ones, the others estimated from the residuals of ``params``
-        (:func:`jaxflex.diagnose.estimate_noise`).
+        (:func:`jaxflex.diagnosis.estimate_noise`).
 
         The universe holds every library effect (and the given candidates) whichever are
         tested, so that every call on the same model and record layout — score tests, a refit,
@@ -1043,7 +1042,7 @@ def score_tests(
 
     ``candidates`` are effect names or instances (default: the library, Stribeck profiled over
     its velocity grid); those already in ``model`` are skipped. ``noise`` gives each channel's
-    :class:`~jaxflex.diagnose.NoiseLevel` (default: estimated from the residuals).
+    :class:`~jaxflex.diagnosis.NoiseLevel` (default: estimated from the residuals).
     ``significant`` marks p-values below ``alpha/m`` (Bonferroni over the ``m`` candidates).
     """
     records = as_dataset(records)
@@ -1297,9 +1296,9 @@ def discover(
     ``budget`` generations or ``(generations, population)`` (default :data:`BUDGET`,
     :data:`FAST_BUDGET` with ``JAXFLEX_FAST=1``). ``alpha`` is the family-wise level of each
     step, Bonferroni over the candidates. ``noise`` gives channels' noise levels, a white σ in
-    the channel's unit or a :class:`~jaxflex.diagnose.NoiseLevel` (e.g.
+    the channel's unit or a :class:`~jaxflex.diagnosis.NoiseLevel` (e.g.
     ``{"joint_angle": 1e-4}``); the others are estimated from the first fit's residuals
-    (:func:`jaxflex.diagnose.estimate_noise`), and the report states each level and how it was
+    (:func:`jaxflex.diagnosis.estimate_noise`), and the report states each level and how it was
     obtained. Returns a :class:`DiscoveryReport`.
     """
     t0 = time.perf_counter()

@@ -30,7 +30,7 @@ import numpy as np
 from jaxtyping import ArrayLike
 
 from jaxflex._io import provenance, to_jsonable, write_json
-from jaxflex.diagnose import Noise, noise_levels
+from jaxflex.diagnosis import Noise, noise_levels
 from jaxflex.evolve import STRATEGIES, get_strategy, run
 from jaxflex.model import Model
 from jaxflex.objective import DEFAULT_CHANNELS, Objective, Records, build_objective
@@ -529,7 +529,7 @@ def identify(
     unit box of the free parameters; ``bounds`` narrows or widens a parameter's range
     (``{"J_h": (1e-3, 1e-2)}``), ``fixed`` holds parameters at given values, ``weights`` and
     ``channels`` shape the objective (:func:`jaxflex.objective.build_objective`); ``noise``
-    (channel → σ or :class:`~jaxflex.diagnose.NoiseLevel`, every fitted channel) sets the
+    (channel → σ or :class:`~jaxflex.diagnosis.NoiseLevel`, every fitted channel) sets the
     weights from the channels' noise levels instead (:func:`jaxflex.objective.noise_weights`).
     ``init_population`` seeds the search with physical points (a mapping name → value or
     values, a list of mappings, or a previous :class:`Fit`). ``refine`` polishes the result with

@@ -20,7 +20,7 @@ import scipy.stats as st
 
 from jaxflex.cli import main
 from jaxflex.data import save_record
-from jaxflex.diagnose import NoiseLevel
+from jaxflex.diagnosis import NoiseLevel
 from jaxflex.discover import (
     Candidate,
     DiscoveryFit,

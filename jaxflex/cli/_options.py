@@ -41,8 +41,8 @@ def _positive(text: str, label: str) -> float:
 
 
 def _noise_level(text: str, label: str):
-    """A white-noise level (:class:`jaxflex.diagnose.NoiseLevel`) of standard deviation TEXT."""
-    from jaxflex.diagnose import NoiseLevel
+    """A white-noise level (:class:`jaxflex.diagnosis.NoiseLevel`) of standard deviation TEXT."""
+    from jaxflex.diagnosis import NoiseLevel
 
     return NoiseLevel(sigma=_positive(text, label))
 
