@@ -155,7 +155,7 @@ def read_fit(option: str, path: str | os.PathLike, *, plain_parameters: bool = F
     """
     import json
 
-    from jaxflex.identify import Fit, load_fit
+    from jaxflex.identification import Fit, load_fit
     from jaxflex.model import Model
 
     path = Path(path)

@@ -56,7 +56,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
 
 def run(args: argparse.Namespace) -> int:
     from jaxflex._io import all_or_nothing
-    from jaxflex.identify import identify
+    from jaxflex.identification import identify
 
     records = load_records(args.data, resample=args.resample, unit_check=args.unit_check)
     out, *plot = check_outputs(

@@ -75,7 +75,7 @@ class ChannelDiagnosis:
 
 @dataclass(frozen=True)
 class Diagnosis:
-    """Residual diagnostics of a model on a set of records (see the module docstring)."""
+    """Residual diagnostics of a model on a set of records (see :mod:`jaxflex.diagnosis`)."""
 
     channels: dict[str, ChannelDiagnosis]
     frf: FrfComparison | None

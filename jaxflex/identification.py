@@ -2,7 +2,7 @@
 
 ::
 
-    from jaxflex.identify import identify
+    from jaxflex.identification import identify
     from jaxflex.synthetic import make_records
 
     fit = identify(make_records(seed=1), method="de", seed=0)
