@@ -458,7 +458,9 @@ def _matrix(value: Any) -> np.ndarray:
 # ------------------------------------------------------------------------------ pipeline
 
 
-def _check_method(method: str) -> str:
+def check_method(method: str) -> str:
+    """The search strategy ``method`` in lower case; an unknown one is a one-line error naming
+    the choices."""
     name = str(method).lower()
     if name not in STRATEGIES:
         raise ValueError(f"unknown method {method!r}; choose one of {', '.join(METHODS)}")
@@ -537,7 +539,7 @@ def identify(
     Gauss–Newton uncertainty at ``level``.
     """
     t_start = time.perf_counter()
-    method = _check_method(method)
+    method = check_method(method)
     objective = build_objective(
         records, model, weights=weights, channels=channels, fixed=fixed, bounds=bounds,
         noise=noise,

@@ -22,7 +22,7 @@ import numpy as np
 
 from jaxflex._io import provenance, to_jsonable, write_json
 from jaxflex._progress import Progress
-from jaxflex.identification import Fit, _check_method, identify
+from jaxflex.identification import Fit, check_method, identify
 from jaxflex.model import Model
 from jaxflex.objective import Records, as_dataset
 
@@ -158,7 +158,7 @@ def run_study(
     ``identify_kwargs`` go to :func:`jaxflex.identification.identify` (bounds, fixed, weights, …);
     intervals are not computed per run (the spread over seeds is the study's subject).
     """
-    methods = [_check_method(m) for m in methods]
+    methods = [check_method(m) for m in methods]
     seeds = [int(s) for s in seeds]
     if not methods or not seeds:
         raise ValueError("a study needs at least one method and one seed")
