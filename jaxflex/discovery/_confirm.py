@@ -21,7 +21,7 @@ not confirmed: the fit used it only to polish the others."""
 
 
 def profile_scan(engine: Engine, x: np.ndarray, active: Sequence[int],
-                  ranking: Sequence[ScoreResult], level: float):
+                 ranking: Sequence[ScoreResult], level: float):
     """Each candidate's profile drop: the cost at the fit minus the lowest cost along its 1-D
     profile (fitted parameters re-optimised to first order, :meth:`Engine.profile_start`).
 
@@ -45,8 +45,8 @@ def profile_scan(engine: Engine, x: np.ndarray, active: Sequence[int],
 
 
 def confirm(engine: Engine, x: np.ndarray, cost: float, active: Sequence[int],
-             candidate: int, guess: Mapping[str, float], level: float,
-             start: tuple[int, np.ndarray] | None = None):
+            candidate: int, guess: Mapping[str, float], level: float,
+            start: tuple[int, np.ndarray] | None = None):
     """Refit the model with one more candidate; its likelihood-ratio test at ``level``, BIC.
 
     Confirmed when the LR test rejects the null at ``level``, the BIC falls and the effect did

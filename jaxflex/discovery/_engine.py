@@ -69,7 +69,7 @@ class Engine:
     """The universe over the records with the noise model; evaluates costs, Jacobians, fits.
 
     Every Jacobian of a run (score tests, each Levenberg–Marquardt step of each refit) comes
-    from the one compiled forward-mode block :func:`_block_impl`; fits run their (tiny) normal
+    from the one compiled forward-mode block (``jacobian_block``); fits run their (tiny) normal
     equations in NumPy. Coordinates: ``φ = log x`` for active log-scale parameters, else ``x``.
     """
 
@@ -150,7 +150,7 @@ class Engine:
             tangents = np.zeros((BLOCK, d))
             tangents[np.arange(len(chunk)), chunk] = 1.0
             y, jt = jacobian_block(self.problem, jnp.asarray(phi), jnp.asarray(logflag),
-                           jnp.asarray(tangents))
+                                   jnp.asarray(tangents))
             pred = np.asarray(y)
             blocks.append(np.asarray(jt)[: len(chunk)].T)
         return pred, np.concatenate(blocks, axis=1) if blocks else np.zeros((pred.size, 0))

@@ -213,8 +213,8 @@ def discover(
                                     key=lambda r: -r.profile_drop)
             for r in contenders[:max_confirm]:
                 conf, slot, x1, cost1 = confirm(engine, x, cost, active,
-                                                 names.index(r.effect), r.estimate, alpha / m,
-                                                 starts.get(r.effect))
+                                                names.index(r.effect), r.estimate, alpha / m,
+                                                starts.get(r.effect))
                 confirmations.append(conf)
                 if conf.confirmed and (best is None or conf.lr > best[0].lr):
                     best = (conf, slot, x1, cost1)

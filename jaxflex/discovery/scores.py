@@ -76,7 +76,7 @@ def one_sided(spec: ParameterSpec) -> int:
 
 
 def score_statistic(cand: Candidate, slot: Slot, specs: Sequence[ParameterSpec], g: np.ndarray,
-           v: np.ndarray) -> ScoreResult:
+                    v: np.ndarray) -> ScoreResult:
     """The score statistic of one profile member from ``g = J_c⊥ᵀ r`` and ``V = J_c⊥ᵀ J_c⊥``."""
     k = len(specs)
     side = one_sided(specs[0]) if k == 1 else 0
