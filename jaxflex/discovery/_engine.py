@@ -27,6 +27,7 @@ from jaxflex.discovery.scores import ScoreResult, score_statistic
 from jaxflex.model import Model
 from jaxflex.objective import build_objective
 from jaxflex.parameters import ParameterSpace
+from jaxflex.refine import bounded_levenberg_marquardt
 from jaxflex.simulate import Outputs, simulate
 
 INNER_WEIGHT = 1e-2
@@ -237,8 +238,9 @@ class Engine:
         return r, -np.concatenate([outside[:, None] * jac, inner[:, None] * jac])
 
     def _lm(self, x0: np.ndarray, active: Sequence[int]) -> np.ndarray:
-        """Levenberg–Marquardt of the base and ``active`` parameters on the bounds (active-set
-        projection).
+        """Levenberg–Marquardt of the base and ``active`` parameters on the bounds
+        (:func:`jaxflex.refine.bounded_levenberg_marquardt`, whose docstring says why discovery
+        does not use the optimistix refinement).
 
         The coordinates are the physical values over their starting magnitudes: in log
         coordinates a parameter pushed against a lower bound near zero (a friction term that
@@ -251,49 +253,20 @@ class Engine:
         x = np.where(mask, x0, u.null)
         x[cols] = np.clip(x[cols], u.space.lower[cols], u.space.upper[cols])
         scale = np.maximum(np.abs(x[cols]), u.space.lower[cols])  # coordinates of order one
-        lo, hi = u.space.lower[cols] / scale, u.space.upper[cols] / scale
-        phi = x[cols] / scale
 
-        def at(p):
+        def system(p: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
             xt = x.copy()
             xt[cols] = p * scale
             pred, jac = self.evaluate(xt, linear, cols)
-            jac = jac * scale
-            r, jf = self._system(pred, jac)
-            cost = float(r @ r)
-            return xt, r, jf, cost if math.isfinite(cost) else math.inf
+            return self._system(pred, jac * scale)
 
-        x, r, jf, cost = at(phi)
-        lam, nu = 1e-3, 2.0
-        for _ in range(self.max_iterations):
-            g = jf.T @ r
-            a = jf.T @ jf
-            diag = np.maximum(np.diag(a), 1e-12 * max(np.max(np.diag(a)), 1e-300))
-            # parameters on a bound that the gradient pushes outwards stay there this step
-            span = hi - lo
-            pinned = ((phi <= lo + 1e-9 * span) & (g > 0)) | ((phi >= hi - 1e-9 * span) & (g < 0))
-            free = ~pinned
-            step = np.zeros_like(phi)
-            if free.any():
-                sub = np.ix_(free, free)
-                step[free] = np.linalg.solve(a[sub] + lam * np.diag(diag[free]), -g[free])
-            trial = np.clip(phi + step, lo, hi)
-            step = trial - phi
-            predicted = -(2 * step @ g + step @ a @ step)
-            xt, r_t, jf_t, cost_t = at(trial)
-            if cost_t < cost:
-                rho = (cost - cost_t) / predicted if predicted > 0 else 0.0
-                lam *= max(1 / 3, 1 - (2 * rho - 1) ** 3)
-                nu = 2.0
-                small = cost - cost_t <= LM_RTOL * cost and lam < 1.0
-                phi, x, r, jf, cost = trial, xt, r_t, jf_t, cost_t
-                if small:
-                    break
-            else:
-                lam *= nu
-                nu *= 2.0
-                if lam > 1e10:
-                    break
+        phi0 = x[cols] / scale
+        phi = bounded_levenberg_marquardt(
+            system, phi0, u.space.lower[cols] / scale, u.space.upper[cols] / scale,
+            max_steps=self.max_iterations, rtol=LM_RTOL,
+        )
+        if phi is not phi0:  # a step was accepted (else x keeps its exact start values)
+            x[cols] = phi * scale
         return x
 
     def profile_start(self, x: np.ndarray, active: Sequence[int], slot: int,
