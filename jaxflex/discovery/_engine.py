@@ -1,6 +1,7 @@
 """The fitting engine of discovery: the noise-whitened, quantisation-aware discovery
-likelihood on the universe, its fits (pattern search, profiles, Levenberg–Marquardt) and
-score tests, with one compiled Jacobian for the whole run."""
+likelihood on the universe, its fits (pattern search, profiles, and the bounded
+Levenberg–Marquardt of :mod:`jaxflex.refine`) and score tests, with one compiled Jacobian for
+the whole run."""
 
 from __future__ import annotations
 
