@@ -26,7 +26,8 @@ from pathlib import Path
 
 import jaxflex  # noqa: F401  (float64)
 from jaxflex._io import provenance, write_json
-from jaxflex.discover import BUDGET, discover, load_example
+from jaxflex.discovery import discover, load_example
+from jaxflex.discovery.loop import BUDGET
 
 RESULTS = Path(__file__).resolve().parent / "results" / "discover.json"
 TARGET_SECONDS = 60.0

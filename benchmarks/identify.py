@@ -33,7 +33,7 @@ from scipy.optimize import differential_evolution
 
 import jaxflex  # noqa: F401  (float64)
 from jaxflex._io import provenance, write_json
-from jaxflex.identify import identify
+from jaxflex.identification import identify
 from jaxflex.model import Model
 from jaxflex.objective import build_objective
 from jaxflex.synthetic import make_records

@@ -24,11 +24,11 @@ configure_host_devices()
 
 from jaxflex import datasets  # noqa: E402
 from jaxflex.arm import Arm, ArmError, load_arm  # noqa: E402
-from jaxflex.compare import Comparison, compare, fit_and_validate, noise_floor  # noqa: E402
+from jaxflex.comparison import Comparison, compare, fit_and_validate, noise_floor  # noqa: E402
 from jaxflex.data import Dataset, Record, load_dataset, load_record, save_record  # noqa: E402
 from jaxflex.design import DesignResult, design_input, predicted_intervals  # noqa: E402
-from jaxflex.diagnose import Diagnosis, diagnose  # noqa: E402
-from jaxflex.discover import (  # noqa: E402
+from jaxflex.diagnosis import Diagnosis, diagnose  # noqa: E402
+from jaxflex.discovery import (  # noqa: E402
     DiscoveryReport,
     add_effect,
     discover,
@@ -39,7 +39,7 @@ from jaxflex.discover import (  # noqa: E402
 from jaxflex.drives import DRIVES, CurrentDrive, Drive, TorqueDrive, VoltageDrive  # noqa: E402
 from jaxflex.effects import EFFECTS, Effect, get_effect, library  # noqa: E402
 from jaxflex.frf import frf, mode_shapes, natural_frequencies  # noqa: E402
-from jaxflex.identify import Fit, identify, load_fit  # noqa: E402
+from jaxflex.identification import Fit, identify, load_fit  # noqa: E402
 from jaxflex.model import Model  # noqa: E402
 from jaxflex.parameters import (  # noqa: E402
     BASE_PARAMETERS,

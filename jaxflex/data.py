@@ -28,6 +28,7 @@ from typing import overload
 import numpy as np
 from numpy.typing import ArrayLike
 
+from jaxflex._arguments import finite_float
 from jaxflex._io import atomic_write
 
 REQUIRED_COLUMNS: tuple[str, ...] = ("time", "torque", "joint_angle", "tip_acceleration")
@@ -211,8 +212,8 @@ class Record:
         appended to ``metadata['history']``.
         """
         t = self.time
-        lo = float(t[0]) if t_start is None else _real(t_start, "t_start")
-        hi = float(t[-1]) if t_end is None else _real(t_end, "t_end")
+        lo = float(t[0]) if t_start is None else finite_float(t_start, "t_start")
+        hi = float(t[-1]) if t_end is None else finite_float(t_end, "t_end")
         if not lo < hi:
             raise ValueError(f"trim: t_start={lo!r} must be below t_end={hi!r}")
         tol = 1e-6 * self.dt
@@ -225,17 +226,17 @@ class Record:
         cut = slice(keep[0], keep[-1] + 1)
         columns = {c: a[cut] for c, a in self.to_dict().items()}
         columns["time"] = columns["time"] - columns["time"][0]
-        return self._with_columns(
+        return self.with_columns(
             columns, note=f"trim [{float(t[cut][0])!r}, {float(t[cut][-1])!r}] s"
         )
 
-    def _with_columns(self, columns: Mapping[str, np.ndarray], note: str) -> Record:
+    def with_columns(self, columns: Mapping[str, np.ndarray], note: str) -> Record:
         """A copy with all columns replaced and ``note`` appended to the history."""
         extras = {c: a for c, a in columns.items() if c not in REQUIRED_COLUMNS}
         required = {c: columns.get(c) for c in REQUIRED_COLUMNS}
-        return self.replace(**required, extras=extras, metadata=self._noted(note))
+        return self.replace(**required, extras=extras, metadata=self.noted_metadata(note))
 
-    def _noted(self, note: str) -> dict[str, str]:
+    def noted_metadata(self, note: str) -> dict[str, str]:
         """Metadata with ``note`` appended to its 'history' entry (provenance of processing)."""
         history = self.metadata.get("history")
         return self.metadata | {"history": f"{history}; {note}" if history else note}
@@ -357,7 +358,7 @@ def load_record(
         dt = float(np.median(steps))
         gap = int(np.argmax(steps))
         gap_text = f"{row(gap)} to {row(gap + 1)} ({float(steps[gap]):.6g} s)"
-        columns = _resample_columns(columns, dt)
+        columns = resample_columns(columns, dt)
         row = _sample_label
         warnings.warn(
             f"{where}: time column is not uniformly sampled; resampled {n} samples onto "
@@ -856,7 +857,7 @@ def _clean_metadata(metadata: object, where: str) -> dict[str, str]:
 # --- helpers ------------------------------------------------------------------------------------
 
 
-def _resample_columns(columns: Mapping[str, np.ndarray], dt: float) -> dict[str, np.ndarray]:
+def resample_columns(columns: Mapping[str, np.ndarray], dt: float) -> dict[str, np.ndarray]:
     """Every column linearly interpolated onto ``time[0] + k·dt`` up to the last time."""
     time = columns["time"]
     n = int(math.floor((time[-1] - time[0]) / dt + 1e-9)) + 1
@@ -885,22 +886,6 @@ def _suffix(path: Path) -> str:
     if suffix not in _SUFFIXES:
         raise ValueError(f"{path}: unsupported record file type {path.suffix!r}; use .csv or .npz")
     return suffix
-
-
-def _real(value: object, name: str, *, minimum: float | None = None, strict: bool = False) -> float:
-    """``value`` as a finite float, optionally ``>= minimum`` (``> minimum`` if ``strict``).
-
-    Shared argument check of the data modules; the message names the argument.
-    """
-    try:
-        x = float(value)  # type: ignore[arg-type]
-    except (TypeError, ValueError):
-        raise ValueError(f"{name}={value!r} must be a number") from None
-    if not math.isfinite(x):
-        raise ValueError(f"{name}={value!r} must be finite")
-    if minimum is not None and (x <= minimum if strict else x < minimum):
-        raise ValueError(f"{name}={value!r} must be {'>' if strict else '>='} {minimum!r}")
-    return x
 
 
 __all__ = [

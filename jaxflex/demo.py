@@ -29,7 +29,7 @@ from pathlib import Path
 from typing import Any
 
 from jaxflex._io import all_or_nothing, check_writable
-from jaxflex.compare import Comparison, compare
+from jaxflex.comparison import Comparison, compare
 from jaxflex.data import Dataset, save_record
 from jaxflex.synthetic import (
     ACCELEROMETER_SIGMA,
@@ -57,9 +57,9 @@ class DemoState:
     overwrite: bool = False
     echo: Callable[[str], None] = print
     records: Dataset | None = None
-    fit: Any = None  # jaxflex.identify.Fit
+    fit: Any = None  # jaxflex.identification.Fit
     comparison: Comparison | None = None
-    discovery: Any = None  # jaxflex.discover.DiscoveryReport
+    discovery: Any = None  # jaxflex.discovery.DiscoveryReport
     files: tuple[Path, ...] = ()
     timings: dict[str, float] = field(default_factory=dict)
 
@@ -86,7 +86,7 @@ def make_data(state: DemoState) -> DemoState:
 
 def identify_on_one(state: DemoState) -> DemoState:
     """Identify the six parameters on the ``FIT_ON`` record only; save ``fit.json``."""
-    from jaxflex.identify import identify
+    from jaxflex.identification import identify
 
     fit = identify(state.records[FIT_ON], method="de", seed=state.seed, intervals=False, **BUDGET)
     path = fit.to_json(state.out / "fit.json", overwrite=state.overwrite)
@@ -124,7 +124,7 @@ def write_report(state: DemoState) -> DemoState:
 
 def discover_hidden_effect(state: DemoState) -> DemoState:
     """Find the effect the bundled example arm hides; the report goes to ``discover/``."""
-    from jaxflex.discover import discover, load_example
+    from jaxflex.discovery import discover, load_example
     from jaxflex.plots.discover import save_discovery_report
 
     records, holdout = load_example()
@@ -156,7 +156,7 @@ STEPS: tuple[tuple[str, Step], ...] = (
 
 def planned_files(out: Path) -> list[Path]:
     """Every file the demo writes, so that all can be checked before any work is done."""
-    from jaxflex.discover import load_example
+    from jaxflex.discovery import load_example
     from jaxflex.plots.compare import report_paths
     from jaxflex.plots.discover import report_paths as discovery_paths
 

@@ -13,7 +13,7 @@ from jaxtyping import Float
 from numpy.typing import ArrayLike
 from scipy import signal
 
-from jaxflex.data import _real
+from jaxflex._arguments import finite_float
 
 
 def nrmse(measured: ArrayLike, model: ArrayLike) -> float:
@@ -58,7 +58,7 @@ def h1_frf(
     x, y = _pair(input, output, names=("input", "output"))
     if x.ndim != 1:
         raise ValueError(f"input and output must be 1-D signals, got shape {x.shape}")
-    fs = _real(fs, "fs", minimum=0.0, strict=True)
+    fs = finite_float(fs, "fs", minimum=0.0, strict=True)
     n = x.size
     if nperseg is None:
         nperseg, window = n, window or "boxcar"
@@ -66,7 +66,7 @@ def h1_frf(
         raise ValueError(f"nperseg={nperseg!r} must be an integer or None")
     elif not 2 <= nperseg <= n:
         raise ValueError(f"nperseg={nperseg!r} must be between 2 and the signal length {n}")
-    if not 0 <= _real(overlap, "overlap") < 1:
+    if not 0 <= finite_float(overlap, "overlap") < 1:
         raise ValueError(f"overlap={overlap!r} must be a fraction in [0, 1)")
     welch = {
         "fs": fs,

@@ -33,7 +33,7 @@ import numpy as np
 from jaxtyping import Array, ArrayLike, Float, Scalar
 
 from jaxflex.data import Dataset, Record
-from jaxflex.diagnose import Noise, noise_levels
+from jaxflex.diagnosis import Noise, noise_levels
 from jaxflex.evolve._base import sanitize_fitness
 from jaxflex.model import Model
 from jaxflex.parallel import population_vmap

@@ -18,7 +18,8 @@ from jaxtyping import Float
 from numpy.typing import ArrayLike
 from scipy import signal
 
-from jaxflex.data import Record, RecordWarning, _real, _resample_columns
+from jaxflex._arguments import finite_float
+from jaxflex.data import Record, RecordWarning, resample_columns
 
 _MIN_QUIET_SAMPLES = 10
 
@@ -86,7 +87,7 @@ def lowpass_record(
     for c in channels:
         columns[c] = lowpass(record.channel(c), cutoff_hz, record.sample_rate, order=order)
     note = f"lowpass {cutoff_hz!r} Hz order {order} ({', '.join(channels)})"
-    return record._with_columns(columns, note=note)
+    return record.with_columns(columns, note=note)
 
 
 def differentiate(
@@ -151,8 +152,8 @@ def resample(record: Record, dt: float) -> Record:
             RecordWarning,
             stacklevel=2,
         )
-    columns = _resample_columns(record.to_dict(), dt)
-    return record._with_columns(columns, note=f"resample dt={dt!r} s")
+    columns = resample_columns(record.to_dict(), dt)
+    return record.with_columns(columns, note=f"resample dt={dt!r} s")
 
 
 def trim(record: Record, t_start: float | None = None, t_end: float | None = None) -> Record:
@@ -211,7 +212,9 @@ def remove_accelerometer_offset(
     span = f"[{float(time[quiet[0]])!r}, {float(time[quiet[-1]])!r}] s"
     return record.replace(
         tip_acceleration=accel - offset,
-        metadata=record._noted(f"tip_acceleration offset {offset!r} m/s^2 removed (mean {span})"),
+        metadata=record.noted_metadata(
+            f"tip_acceleration offset {offset!r} m/s^2 removed (mean {span})"
+        ),
     )
 
 
@@ -243,11 +246,11 @@ def _to_last(x: np.ndarray, axis: int) -> np.ndarray:
 
 
 def _positive(value: object, name: str) -> float:
-    return _real(value, name, minimum=0.0, strict=True)
+    return finite_float(value, name, minimum=0.0, strict=True)
 
 
 def _nonnegative(value: object, name: str) -> float:
-    return _real(value, name, minimum=0.0)
+    return finite_float(value, name, minimum=0.0)
 
 
 def _nonnegative_int(value: object, name: str) -> int:

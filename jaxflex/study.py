@@ -1,6 +1,6 @@
 """The paper's study: each evolutionary method from several seeds, summarised like its tables.
 
-Every run is one :func:`jaxflex.identify.identify` call on the same records (so all runs of a
+Every run is one :func:`jaxflex.identification.identify` call on the same records (so all runs of a
 method share one compiled program); the study keeps, per run, the identified parameters, the
 final and search costs, the timing and the convergence history, and prints the mean ± standard
 deviation of each parameter over seeds with the final objective and wall time::
@@ -22,7 +22,7 @@ import numpy as np
 
 from jaxflex._io import provenance, to_jsonable, write_json
 from jaxflex._progress import Progress
-from jaxflex.identify import Fit, _check_method, identify
+from jaxflex.identification import Fit, check_method, identify
 from jaxflex.model import Model
 from jaxflex.objective import Records, as_dataset
 
@@ -155,10 +155,10 @@ def run_study(
 ) -> Study:
     """Identify with each method from each seed (paper settings unless overridden).
 
-    ``identify_kwargs`` go to :func:`jaxflex.identify.identify` (bounds, fixed, weights, …);
+    ``identify_kwargs`` go to :func:`jaxflex.identification.identify` (bounds, fixed, weights, …);
     intervals are not computed per run (the spread over seeds is the study's subject).
     """
-    methods = [_check_method(m) for m in methods]
+    methods = [check_method(m) for m in methods]
     seeds = [int(s) for s in seeds]
     if not methods or not seeds:
         raise ValueError("a study needs at least one method and one seed")

@@ -73,7 +73,7 @@ def add_measurement_noise(
     return record.replace(
         joint_angle=angle,
         tip_acceleration=accel,
-        metadata=record._noted(note) | {"noise_seed": str(seed)},
+        metadata=record.noted_metadata(note) | {"noise_seed": str(seed)},
     )
 
 

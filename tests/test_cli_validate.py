@@ -9,7 +9,7 @@ import pytest
 
 from jaxflex.cli import main
 from jaxflex.data import RecordWarning, save_record
-from jaxflex.identify import Fit, History, describe_model
+from jaxflex.identification import Fit, History, describe_model
 from jaxflex.model import Model
 from jaxflex.parameters import reference_parameters
 from jaxflex.synthetic import make_records

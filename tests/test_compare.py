@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 import scipy.signal as ss
 
-from jaxflex.compare import Comparison, FRFSettings, compare, fit_and_validate, noise_floor
+from jaxflex.comparison import Comparison, FRFSettings, compare, fit_and_validate, noise_floor
 from jaxflex.data import Dataset, Record
 from jaxflex.metrics import nrmse
 from jaxflex.model import Model
@@ -239,7 +239,7 @@ def test_fit_and_validate_fits_only_the_named_records(monkeypatch, records):
         calls.append((fit_records.names, kwargs))
         return _StubFit(fit_records.names)
 
-    monkeypatch.setattr(sys.modules["jaxflex.identify"], "identify", fake_identify)
+    monkeypatch.setattr(sys.modules["jaxflex.identification"], "identify", fake_identify)
     fit, c = fit_and_validate(records, "triangular", ["pulse"], generations=3, seed=5, **NOISE)
     assert calls == [(("triangular",), {"generations": 3, "seed": 5})]
     assert c.names == ("triangular", "pulse") and [r.role for r in c.rows] == ["fit", "held-out"]

@@ -12,7 +12,7 @@ import pytest
 import scipy.stats as st
 
 from jaxflex.data import Record
-from jaxflex.diagnose import (
+from jaxflex.diagnosis import (
     NoiseLevel,
     amplitude_scaling,
     autocorrelation,

@@ -20,21 +20,20 @@ import scipy.stats as st
 
 from jaxflex.cli import main
 from jaxflex.data import save_record
-from jaxflex.diagnose import NoiseLevel
-from jaxflex.discover import (
+from jaxflex.diagnosis import NoiseLevel
+from jaxflex.discovery import (
     Candidate,
     DiscoveryFit,
-    _Engine,
-    _initial_params,
-    _rigid,
-    _score,
-    _Slot,
     add_effect,
     candidate_set,
     discover,
     refit,
     score_tests,
 )
+from jaxflex.discovery._engine import Engine
+from jaxflex.discovery._universe import Slot
+from jaxflex.discovery.loop import _initial_params, _rigid
+from jaxflex.discovery.scores import score_statistic
 from jaxflex.effects import Effect, Stribeck, get_effect
 from jaxflex.metrics import nrmse
 from jaxflex.model import Model
@@ -115,7 +114,7 @@ def assert_at_noise_floor(report, floor, factor=1.3):
 
 
 def _slot(spec):
-    return _Slot(0, 0, Stribeck(), (spec.name,), (spec.name,))
+    return Slot(0, 0, Stribeck(), (spec.name,), (spec.name,))
 
 
 @pytest.mark.parametrize("z", [0.5, 1.7, 3.2])
@@ -123,11 +122,11 @@ def test_one_sided_score_is_the_chi_bar_square_mixture(z):
     spec = get_effect("payload").parameters[0]
     cand = Candidate("payload", (get_effect("payload"),))
     g, v = np.array([z * 2.0]), np.array([[4.0]])  # z = g/√V
-    res = _score(cand, _slot(spec), [spec], g, v)
+    res = score_statistic(cand, _slot(spec), [spec], g, v)
     assert res.one_sided and res.statistic == pytest.approx(z**2)
     assert res.p_value == pytest.approx(st.norm.sf(z), rel=1e-9)
     assert res.estimate["m_p"] == pytest.approx(z * 2.0 / 4.0)
-    wrong_way = _score(cand, _slot(spec), [spec], -g, v)
+    wrong_way = score_statistic(cand, _slot(spec), [spec], -g, v)
     assert wrong_way.statistic == 0.0 and wrong_way.p_value == 1.0
 
 
@@ -135,7 +134,7 @@ def test_two_sided_score_for_an_interior_null():
     spec = ParameterSpec("k", "1", 0.5, 1.5, 1.0, null=1.0, log_scale=False)
     cand = Candidate("gain", (get_effect("payload"),))
     g, v = np.array([3.0]), np.array([[2.0]])
-    res = _score(cand, _slot(spec), [spec], g, v)
+    res = score_statistic(cand, _slot(spec), [spec], g, v)
     assert not res.one_sided and res.statistic == pytest.approx(4.5)
     assert res.p_value == pytest.approx(st.chi2.sf(4.5, 1), rel=1e-9)
 
@@ -171,7 +170,7 @@ def test_score_statistic_is_the_gauss_newton_cost_drop(payload_case):
     columns match finite differences of the simulation."""
     records, _, _ = payload_case
     cands = candidate_set(["payload", "gravity", "root_compliance"])
-    engine = _Engine.build(Model(), cands, records, START, NOISE)
+    engine = Engine.build(Model(), cands, records, START, NOISE)
     u = engine.universe
     x = u.vector(START)
     base = list(range(u.n_base))
@@ -413,7 +412,7 @@ def test_bundled_example_is_reproducible_and_hides_a_payload():
     import runpy
     from pathlib import Path
 
-    from jaxflex.discover import load_example
+    from jaxflex.discovery import load_example
 
     script = Path(__file__).resolve().parents[1] / "benchmarks" / "make_example_data.py"
     assert runpy.run_path(str(script))["main"](["--check"]) == 0

@@ -24,7 +24,7 @@ import pytest
 import jaxflex
 from jaxflex._io import TEMP_MARK
 from jaxflex.cli import main
-from jaxflex.identify import FIT_FORMAT, Fit, describe_model
+from jaxflex.identification import FIT_FORMAT, Fit, describe_model
 from jaxflex.model import Model
 
 EXAMPLE = Path(jaxflex.__file__).parent / "data" / "example_pulse.csv"
@@ -310,7 +310,7 @@ def test_7_a_failed_fit_is_not_written(monkeypatch, tmp_path, capsys):
     import functools
     import types
 
-    module = sys.modules["jaxflex.identify"]
+    module = sys.modules["jaxflex.identification"]
 
     @functools.wraps(module.identify)
     def diverged(*args, **kwargs):
@@ -629,7 +629,7 @@ def test_fitting_options_are_one_definition(tmp_path, capsys, command, option, v
 def test_discover_passes_effects_and_noise_levels_on(monkeypatch, tmp_path, capsys):
     import functools
 
-    module = sys.modules["jaxflex.discover"]
+    module = sys.modules["jaxflex.discovery"]
     seen = {}
 
     @functools.wraps(module.discover)

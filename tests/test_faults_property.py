@@ -24,7 +24,7 @@ from hypothesis import strategies as st  # noqa: E402
 from jaxflex._io import TEMP_MARK  # noqa: E402
 from jaxflex.cli import main  # noqa: E402
 from jaxflex.data import RecordError, load_record  # noqa: E402
-from jaxflex.identify import load_fit  # noqa: E402
+from jaxflex.identification import load_fit  # noqa: E402
 from tests.test_faults import EXAMPLE, fit_data  # noqa: E402
 
 HUNT = int(os.environ.get("JAXFLEX_PROPERTY_EXAMPLES", "0"))

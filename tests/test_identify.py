@@ -17,7 +17,7 @@ import jaxflex  # noqa: F401  (float64)
 from jaxflex._io import OutputExistsError
 from jaxflex.data import RecordError
 from jaxflex.evolve import get_strategy
-from jaxflex.identify import Fit, identify, load_fit
+from jaxflex.identification import Fit, identify, load_fit
 from jaxflex.model import Model
 from jaxflex.objective import build_objective
 from jaxflex.refine import refine, uncertainty

@@ -23,9 +23,9 @@ import pytest
 from reference_solver import radau_reference
 from test_discover import START, TRUTH
 
-from jaxflex.compare import DEFAULT_T_END
+from jaxflex.comparison import DEFAULT_T_END
 from jaxflex.data import Dataset, load_record
-from jaxflex.discover import discover
+from jaxflex.discovery import discover
 from jaxflex.effects import get_effect
 from jaxflex.metrics import nrmse
 from jaxflex.model import Model

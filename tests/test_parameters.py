@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from jaxflex.evolve import DE, run
-from jaxflex.identify import _unit_seeds
+from jaxflex.identification import _unit_seeds
 from jaxflex.model import Model
 from jaxflex.objective import build_objective
 from jaxflex.parameters import UNIT_SLACK, base_space, into_unit_box

@@ -10,7 +10,7 @@ import pytest
 from matplotlib.figure import Figure
 
 from jaxflex._io import OutputExistsError
-from jaxflex.compare import compare
+from jaxflex.comparison import compare
 from jaxflex.model import Model
 from jaxflex.parameters import reference_parameters
 from jaxflex.plots import save_figure

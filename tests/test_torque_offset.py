@@ -54,8 +54,8 @@ def test_the_offset_drives_a_resting_arm_once_it_beats_coulomb_friction():
 def test_score_tests_name_the_offset_not_gravity():
     """A bias hidden in synthetic records is found by discover's score tests, ahead of the
     tilted plane (gravity) that used to absorb it, and its sign is estimated."""
-    from jaxflex.diagnose import NoiseLevel
-    from jaxflex.discover import refit, score_tests
+    from jaxflex.diagnosis import NoiseLevel
+    from jaxflex.discovery import refit, score_tests
     from jaxflex.synthetic import ACCELEROMETER_SIGMA, ENCODER_STEP, make_records
 
     truth = {"E": 5.2e10, "J_h": 0.0062, "b_v": 1.2e-3, "tau_c": 0.09, "alpha": 1.3,

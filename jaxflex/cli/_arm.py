@@ -50,7 +50,7 @@ def identify_with_arm(args: argparse.Namespace) -> int:
     from jaxflex.cli._checks import JSON_SUFFIXES, check_outputs
     from jaxflex.cli._options import fit_keywords, model_from
     from jaxflex.cli.identify import check_finite_cost, sources
-    from jaxflex.identify import identify
+    from jaxflex.identification import identify
     from jaxflex.measured import fit_channels, model_record
 
     arm = _arm(args.arm)

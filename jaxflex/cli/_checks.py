@@ -148,14 +148,14 @@ def positive_float(text: str) -> float:
 
 def read_fit(option: str, path: str | os.PathLike, *, plain_parameters: bool = False):
     """(model, parameters, fit or None) from a fit file, checked field by field against
-    :data:`jaxflex.identify.FIT_SCHEMA` before the model is built (its size counts too).
+    :data:`jaxflex.identification.FIT_SCHEMA` before the model is built (its size counts too).
 
     With ``plain_parameters``, a JSON object mapping parameter names to numbers is a fit of the
     reference model too.
     """
     import json
 
-    from jaxflex.identify import Fit, load_fit
+    from jaxflex.identification import Fit, load_fit
     from jaxflex.model import Model
 
     path = Path(path)

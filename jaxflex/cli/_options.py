@@ -2,8 +2,8 @@
 
 ``--effect NAME`` adds a physical effect to the model; ``--bound NAME=LO:HI``, ``--fix
 NAME=VALUE``, ``--weight CHANNEL=W`` and ``--noise CHANNEL=SIGMA`` become the ``bounds``,
-``fixed``, ``weights`` and ``noise`` keywords of :func:`jaxflex.identify.identify` and
-:func:`jaxflex.discover.discover`. Each repeatable ``NAME=VALUE`` option is one row
+``fixed``, ``weights`` and ``noise`` keywords of :func:`jaxflex.identification.identify` and
+:func:`jaxflex.discovery.discover`. Each repeatable ``NAME=VALUE`` option is one row
 of :data:`PAIR_OPTIONS` (a :class:`PairOption`): adding one is one row. :func:`fit_keywords`
 passes on only the keywords the called function accepts, and refuses an option given to a
 function without it.
@@ -41,8 +41,8 @@ def _positive(text: str, label: str) -> float:
 
 
 def _noise_level(text: str, label: str):
-    """A white-noise level (:class:`jaxflex.diagnose.NoiseLevel`) of standard deviation TEXT."""
-    from jaxflex.diagnose import NoiseLevel
+    """A white-noise level (:class:`jaxflex.diagnosis.NoiseLevel`) of standard deviation TEXT."""
+    from jaxflex.diagnosis import NoiseLevel
 
     return NoiseLevel(sigma=_positive(text, label))
 

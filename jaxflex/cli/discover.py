@@ -58,7 +58,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
 
 def run(args: argparse.Namespace) -> int:
     from jaxflex._io import all_or_nothing, same_file, write_json
-    from jaxflex.discover import candidate_set, discover
+    from jaxflex.discovery import candidate_set, discover
 
     if args.max_steps < 0:
         raise UsageError(f"--max-steps must be >= 0, got {args.max_steps}")

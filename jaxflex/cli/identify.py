@@ -59,7 +59,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
 
 def run(args: argparse.Namespace) -> int:
     from jaxflex._io import all_or_nothing
-    from jaxflex.identify import identify
+    from jaxflex.identification import identify
 
     if args.arm is not None or args.window is not None:
         if args.arm is None or args.plot is not None:

@@ -53,7 +53,7 @@ def parse_seeds(text: str) -> list[int]:
 
 def parse_methods(text: str) -> list[str]:
     """``"de,ga"`` → ``["de", "ga"]``; unknown or repeated methods are refused."""
-    from jaxflex.identify import METHODS
+    from jaxflex.identification import METHODS
 
     methods = [m.strip().lower() for m in text.split(",") if m.strip()]
     if not methods:
@@ -68,7 +68,7 @@ def parse_methods(text: str) -> list[str]:
 
 def run(args: argparse.Namespace) -> int:
     from jaxflex._io import all_or_nothing
-    from jaxflex.identify import identify
+    from jaxflex.identification import identify
     from jaxflex.study import run_study
 
     methods = parse_methods(args.methods)

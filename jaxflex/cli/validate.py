@@ -23,7 +23,7 @@ from jaxflex.cli._checks import (
 )
 from jaxflex.cli._options import add_record_options
 from jaxflex.cli.identify import sources
-from jaxflex.compare import DEFAULT_T_END, FRFSettings, compare
+from jaxflex.comparison import DEFAULT_T_END, FRFSettings, compare
 
 HELP = "compare a fitted model with measured records: metrics table and figures"
 

@@ -6,7 +6,7 @@
   resonances marked and labelled in Hz and the bins left out of the FRF NRMSE shown apart;
 * :func:`save_report` — the table, ``comparison.json`` and every figure into one directory.
 
-Everything drawn is read from a :class:`~jaxflex.compare.Comparison` (or a record and its
+Everything drawn is read from a :class:`~jaxflex.comparison.Comparison` (or a record and its
 simulated outputs); no metric is computed here.
 """
 
@@ -20,7 +20,7 @@ import numpy as np
 from matplotlib.figure import Figure
 
 from jaxflex._io import check_writable, safe_stem, write_json, write_text
-from jaxflex.compare import FRF, Comparison
+from jaxflex.comparison import FRF, Comparison
 from jaxflex.data import OUTPUT_COLUMNS, Record
 from jaxflex.plots._style import MARK, MEASURED, MODEL, RESIDUAL, new_figure, save_figure
 from jaxflex.simulate import Outputs
@@ -108,7 +108,7 @@ def plot_frf(
     """FRF torque → tip acceleration: magnitude (dB) and phase, measured vs model.
 
     ``source`` is a comparison (``which``: one record, several, or ``None`` for all) or a single
-    :class:`~jaxflex.compare.FRF`. Measured bins used by the FRF NRMSE are dots, bins left out
+    :class:`~jaxflex.comparison.FRF`. Measured bins used by the FRF NRMSE are dots, bins left out
     (low input power or coherence) faint crosses; the model is a line over the compared bins.
     The model's resonances
     (``resonances_hz``, default: the comparison's) are dashed vertical lines labelled in Hz,

@@ -8,7 +8,7 @@
 * :func:`plot_error_falling` — NRMSE per model structure of a discovery run, noise floor dashed;
 * :func:`plot_overlay` — one record measured against the model before and after.
 
-Every number drawn is read from a :class:`~jaxflex.diagnose.Diagnosis` (or given); nothing is
+Every number drawn is read from a :class:`~jaxflex.diagnosis.Diagnosis` (or given); nothing is
 computed here beyond unit conversions.
 """
 
@@ -21,7 +21,7 @@ from matplotlib.axes import Axes
 from matplotlib.figure import Figure
 
 from jaxflex.data import OUTPUT_COLUMNS, Record
-from jaxflex.diagnose import (
+from jaxflex.diagnosis import (
     Autocorrelation,
     CrossCorrelation,
     Diagnosis,

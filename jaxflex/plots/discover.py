@@ -6,7 +6,7 @@
 * :func:`save_discovery_report` — ``table.txt``, ``discover.json``, the error figure, the
   diagnosis of the base and final model and a before/after overlay per record.
 
-Everything drawn is read from a :class:`~jaxflex.discover.DiscoveryReport`.
+Everything drawn is read from a :class:`~jaxflex.discovery.DiscoveryReport`.
 """
 
 from __future__ import annotations
@@ -18,7 +18,7 @@ from pathlib import Path
 from matplotlib.figure import Figure
 
 from jaxflex._io import check_writable, safe_stem, write_json, write_text
-from jaxflex.discover import DiscoveryReport
+from jaxflex.discovery import DiscoveryReport
 from jaxflex.plots._style import save_figure
 from jaxflex.plots.diagnose import plot_diagnosis, plot_error_falling, plot_overlay
 

@@ -5,7 +5,7 @@
 * :func:`plot_intervals` — each identified parameter's interval, drawn in units of its own
   half-width (log scale for log-scale parameters) and labelled with its value and spread, with
   the true value where known (inside the interval ⇔ within ±1);
-* :func:`plot_fit` — both for one :class:`~jaxflex.identify.Fit`.
+* :func:`plot_fit` — both for one :class:`~jaxflex.identification.Fit`.
 
 Everything drawn is read from fits (or their histories); nothing is computed here but medians.
 """
@@ -19,7 +19,7 @@ from matplotlib.axes import Axes
 from matplotlib.figure import Figure
 from matplotlib.ticker import MaxNLocator
 
-from jaxflex.identify import Fit
+from jaxflex.identification import Fit
 from jaxflex.plots._style import MARK, MODEL, RESIDUAL, figure_axes, new_figure
 
 METHOD_COLOURS = {"de": "tab:blue", "ga": "tab:green", "pso": "tab:purple"}

@@ -2,7 +2,7 @@
 
 ::
 
-    from jaxflex.identify import identify
+    from jaxflex.identification import identify
     from jaxflex.synthetic import make_records
 
     fit = identify(make_records(seed=1), method="de", seed=0)
@@ -30,7 +30,7 @@ import numpy as np
 from jaxtyping import ArrayLike
 
 from jaxflex._io import provenance, to_jsonable, write_json
-from jaxflex.diagnose import Noise, noise_levels
+from jaxflex.diagnosis import Noise, noise_levels
 from jaxflex.evolve import STRATEGIES, get_strategy, run
 from jaxflex.model import Model
 from jaxflex.objective import DEFAULT_CHANNELS, Objective, Records, build_objective
@@ -458,7 +458,9 @@ def _matrix(value: Any) -> np.ndarray:
 # ------------------------------------------------------------------------------ pipeline
 
 
-def _check_method(method: str) -> str:
+def check_method(method: str) -> str:
+    """The search strategy ``method`` in lower case; an unknown one is a one-line error naming
+    the choices."""
     name = str(method).lower()
     if name not in STRATEGIES:
         raise ValueError(f"unknown method {method!r}; choose one of {', '.join(METHODS)}")
@@ -529,7 +531,7 @@ def identify(
     unit box of the free parameters; ``bounds`` narrows or widens a parameter's range
     (``{"J_h": (1e-3, 1e-2)}``), ``fixed`` holds parameters at given values, ``weights`` and
     ``channels`` shape the objective (:func:`jaxflex.objective.build_objective`); ``noise``
-    (channel → σ or :class:`~jaxflex.diagnose.NoiseLevel`, every fitted channel) sets the
+    (channel → σ or :class:`~jaxflex.diagnosis.NoiseLevel`, every fitted channel) sets the
     weights from the channels' noise levels instead (:func:`jaxflex.objective.noise_weights`).
     ``init_population`` seeds the search with physical points (a mapping name → value or
     values, a list of mappings, or a previous :class:`Fit`). ``refine`` polishes the result with
@@ -537,7 +539,7 @@ def identify(
     Gauss–Newton uncertainty at ``level``.
     """
     t_start = time.perf_counter()
-    method = _check_method(method)
+    method = check_method(method)
     objective = build_objective(
         records, model, weights=weights, channels=channels, fixed=fixed, bounds=bounds,
         noise=noise,

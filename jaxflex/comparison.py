@@ -45,7 +45,7 @@ DEFAULT_T_END = 2.0
 """Time-domain metrics cover ``0 ≤ t ≤ 2 s`` of each record (the spec's window)."""
 
 if TYPE_CHECKING:
-    from jaxflex.identify import Fit
+    from jaxflex.identification import Fit
 
 _SHORT = {"joint_angle": "angle", "tip_acceleration": "tip acc"}
 
@@ -299,7 +299,7 @@ def compare(
         out = simulate(model, values, record.torque, dt=record.dt)
         role = "fit" if record.name in fit_names else "held-out"
         rows.append(
-            _compare_record(record, out, role, t_end, settings, encoder_counts, accel_sigma)
+            compare_record(record, out, role, t_end, settings, encoder_counts, accel_sigma)
         )
         simulated.append(out)
 
@@ -337,10 +337,10 @@ def fit_and_validate(
     """Identify on the records named ``fit_names``, then compare on those and the held-out ones.
 
     ``validate_names`` defaults to every other record. ``identify_kwargs`` go to
-    :func:`jaxflex.identify.identify` (model, method, seed, generations, ...); the comparison
+    :func:`jaxflex.identification.identify` (model, method, seed, generations, ...); the comparison
     keywords go to :func:`compare`. Returns ``(fit, comparison)``.
     """
-    from jaxflex.identify import identify
+    from jaxflex.identification import identify
 
     dataset = _as_dataset(records)
     fit_set, rest = dataset.split(fit_names)
@@ -402,7 +402,7 @@ def noise_floor(
 # --- per record ---------------------------------------------------------------------------------
 
 
-def _compare_record(
+def compare_record(
     record: Record,
     out: Outputs,
     role: str,
@@ -411,6 +411,10 @@ def _compare_record(
     encoder_counts: int | None,
     accel_sigma: float | None,
 ) -> RecordComparison:
+    """The model's outputs ``out`` against one record in the role ``role`` (``"fit"`` or
+    ``"held-out"``): NRMSE and relative error per output over the first ``t_end`` seconds, the
+    FRFs under ``settings``, and the noise floor of the given sensor noise (``None``: unknown).
+    One row of :class:`Comparison`; discovery scores its steps with it too."""
     window = _time_window(record, t_end)
     errors, relative = {}, {}
     for name in OUTPUT_COLUMNS:
@@ -599,6 +603,7 @@ __all__ = [
     "FRFSettings",
     "RecordComparison",
     "compare",
+    "compare_record",
     "fit_and_validate",
     "noise_floor",
 ]

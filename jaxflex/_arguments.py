@@ -1,0 +1,23 @@
+"""Checks of scalar arguments shared by the modules that read and process records: each failure
+is one line naming the argument and the value given."""
+
+from __future__ import annotations
+
+import math
+
+
+def finite_float(value: object, name: str, *, minimum: float | None = None,
+                 strict: bool = False) -> float:
+    """``value`` as a finite float, optionally ``>= minimum`` (``> minimum`` if ``strict``).
+
+    The error message names the argument ``name``.
+    """
+    try:
+        x = float(value)  # type: ignore[arg-type]
+    except (TypeError, ValueError):
+        raise ValueError(f"{name}={value!r} must be a number") from None
+    if not math.isfinite(x):
+        raise ValueError(f"{name}={value!r} must be finite")
+    if minimum is not None and (x <= minimum if strict else x < minimum):
+        raise ValueError(f"{name}={value!r} must be {'>' if strict else '>='} {minimum!r}")
+    return x

@@ -1,0 +1,408 @@
+"""The fitting engine of discovery: the noise-whitened, quantisation-aware discovery
+likelihood on the universe, its fits (pattern search, profiles, and the bounded
+Levenberg–Marquardt of :mod:`jaxflex.refine`) and score tests, with one compiled Jacobian for
+the whole run."""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from collections.abc import Iterable, Mapping, Sequence
+from dataclasses import dataclass
+
+import jax.numpy as jnp
+import numpy as np
+
+from jaxflex.data import Dataset
+from jaxflex.diagnosis import (
+    Noise,
+    NoiseLevel,
+    estimate_noise,
+    noise_levels,
+)
+from jaxflex.diagnosis.noise import CHANNELS
+from jaxflex.discovery._universe import BLOCK, Problem, Universe, forward, jacobian_block
+from jaxflex.discovery.candidates import Candidate, candidate_set
+from jaxflex.discovery.report import DiscoveryFit
+from jaxflex.discovery.scores import ScoreResult, score_statistic
+from jaxflex.model import Model
+from jaxflex.objective import build_objective
+from jaxflex.parameters import ParameterSpace
+from jaxflex.refine import bounded_levenberg_marquardt
+from jaxflex.simulate import Outputs, simulate
+
+INNER_WEIGHT = 1e-2
+
+"""``ε``: weight of quantised residuals inside the quantisation band in fits (not in tests)."""
+
+
+PROFILE_POINTS = 13
+
+"""Start values of a new effect's parameters tried before the refit (unit-box diagonal)."""
+
+
+GOLDEN_STEPS = 12
+
+"""Golden-section steps refining the best start value."""
+
+
+PATTERN_ROUNDS = 2
+
+"""Pattern searches (each followed by Levenberg–Marquardt when it helps) per fit."""
+
+
+PATTERN = (0.5, 0.8, 0.9, 0.95, 0.98, 0.99, 1.01, 1.02, 1.05, 1.1, 1.25, 2.0)
+
+"""Factors a fit's pattern search tries on each effect parameter."""
+
+
+LM_STEPS = 30
+
+"""Levenberg–Marquardt steps per refit (each one Jacobian)."""
+
+
+LM_RTOL = 1e-8
+
+"""A refit stops when an accepted step lowers the cost by less than this fraction."""
+
+
+@dataclass
+class Engine:
+    """The universe over the records with the noise model; evaluates costs, Jacobians, fits.
+
+    Every Jacobian of a run (score tests, each Levenberg–Marquardt step of each refit) comes
+    from the one compiled forward-mode block (``jacobian_block``); fits run their (tiny) normal
+    equations in NumPy. Coordinates: ``φ = log x`` for active log-scale parameters, else ``x``.
+    """
+
+    universe: Universe
+    problem: Problem
+    records: Dataset
+    noise: dict[str, NoiseLevel]
+    halfwidth: np.ndarray  # per element: quantisation half-step in units of σ (0: white)
+    quantised: np.ndarray  # per element: bool
+    tested: tuple[int, ...] = ()  # the candidates (universe indices) to test and add
+    anchor: np.ndarray | None = None  # the run's starting point: where pinned parameters return
+    max_iterations: int = LM_STEPS
+
+    @classmethod
+    def build(cls, model: Model, candidates: Sequence[Candidate], records: Dataset,
+              params: Mapping[str, float], noise: Noise | None) -> Engine:
+        """The engine testing ``candidates`` on ``model``; the channels' noise levels are the
+        given ones, the others estimated from the residuals of ``params``
+        (:func:`jaxflex.diagnosis.estimate_noise`).
+
+        The universe holds every library effect (and the given candidates) whichever are
+        tested, so that every call on the same model and record layout — score tests, a refit,
+        an added effect, a discovery run — reuses one compiled Jacobian.
+        """
+        names = [c.name for c in candidates]
+        pool = [c for c in candidate_set() if c.name not in names] + list(candidates)
+        pool = sorted((c for c in pool if c.name not in model.effect_names),
+                      key=lambda c: c.name)
+        universe = Universe.build(model, pool)
+        levels = noise_levels(noise)
+        if any(c not in levels for c in CHANNELS):
+            x = universe.vector(params)
+            preds = simulate_all(universe, x, records)
+            residuals = [{c: r.channel(c) - np.asarray(p.channel(c)) for c in CHANNELS}
+                         for r, p in zip(records, preds, strict=True)]
+            levels = estimate_noise(records, residuals, given=levels)
+        for c, level in levels.items():
+            if not (math.isfinite(level.sigma) and level.sigma > 0):
+                raise ValueError(f"noise level of {c} must be positive, got {level.sigma!r}; "
+                                 "give it with noise={...}")
+        objective = build_objective(records, universe.model, channels=CHANNELS)
+        _, channel, _ = objective.layout()
+        sigma = np.array([levels[c].sigma for c in CHANNELS])[channel]
+        half = np.array([0.5 * levels[c].step / levels[c].sigma
+                         if levels[c].kind == "quantised" else 0.0 for c in CHANNELS])[channel]
+        measured = np.concatenate([np.asarray(m).reshape(-1) for m in objective.measured])
+        problem = Problem(objective, jnp.asarray(measured / sigma), jnp.asarray(sigma))
+        tested = tuple(i for i, c in enumerate(pool) if c.name in names)
+        anchor = np.clip(universe.vector(params), universe.space.lower, universe.space.upper)
+        return cls(universe, problem, records, levels, half, half > 0, tested, anchor)
+
+    def candidate(self, name: str) -> int:
+        """Universe index of a candidate by name."""
+        return [c.name for c in self.universe.candidates].index(name)
+
+    @property
+    def n_samples(self) -> int:
+        return int(self.halfwidth.size)
+
+    @property
+    def noise_cost(self) -> float:
+        """Expected statistics cost of pure noise: one per white element (quantised residuals
+        stay inside their band)."""
+        return float(np.sum(~self.quantised))
+
+    # --- evaluation ---------------------------------------------------------------------------
+    def _coords(self, mask: np.ndarray) -> np.ndarray:
+        return mask & self.universe.log
+
+    def evaluate(self, x: np.ndarray, logflag: np.ndarray, cols: Sequence[int]):
+        """(``ŷ/σ``, Jacobian columns ``∂(ŷ/σ)/∂φ`` for ``cols``) at ``x``."""
+        phi = np.where(logflag, np.log(np.where(logflag, x, 1.0)), x)
+        cols = list(cols)
+        d = len(x)
+        pred, blocks = None, []
+        for start in range(0, max(len(cols), 1), BLOCK):
+            chunk = cols[start:start + BLOCK]
+            tangents = np.zeros((BLOCK, d))
+            tangents[np.arange(len(chunk)), chunk] = 1.0
+            y, jt = jacobian_block(self.problem, jnp.asarray(phi), jnp.asarray(logflag),
+                                   jnp.asarray(tangents))
+            pred = np.asarray(y)
+            blocks.append(np.asarray(jt)[: len(chunk)].T)
+        return pred, np.concatenate(blocks, axis=1) if blocks else np.zeros((pred.size, 0))
+
+    def whitened(self, pred: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """(``u``, ``dz(u)``): the whitened residual and its part beyond quantisation."""
+        u = np.asarray(self.problem.measured) - pred
+        return u, np.sign(u) * np.maximum(np.abs(u) - self.halfwidth, 0.0)
+
+    def stat_cost(self, pred: np.ndarray) -> float:
+        """``C = Σ dz(u)²`` (:mod:`jaxflex.discovery`)."""
+        return float(np.sum(self.whitened(pred)[1] ** 2))
+
+    def fit_cost(self, pred: np.ndarray) -> float:
+        u, dz = self.whitened(pred)
+        return float(np.sum(dz**2) + INNER_WEIGHT * np.sum(u[self.quantised] ** 2))
+
+    # --- fitting ------------------------------------------------------------------------------
+    def fit(self, x0: np.ndarray, active: Sequence[int]) -> tuple[np.ndarray, float]:
+        """Fit the base and ``active`` slot parameters from ``x0``; returns ``(x, C)``.
+
+        Levenberg–Marquardt, then a pattern search over each effect parameter (factors
+        :data:`PATTERN`) and Levenberg–Marquardt again while that finds a lower cost: an effect
+        may be piecewise smooth (a delay on a zero-order-hold grid has a kink at every
+        sub-step), and a gradient method stops at a kink. Inactive candidates stay at their
+        nulls.
+        """
+        u = self.universe
+        x = self._lm(x0, active)
+        effect_cols = [i for s in active for i in u.index(u.slots[s].names)]
+        for _ in range(PATTERN_ROUNDS):
+            base_cost = self.forward_cost(x)
+            best, best_cost = x, base_cost
+            for i in effect_cols:
+                for factor in PATTERN:
+                    xt = best.copy()
+                    xt[i] = np.clip(best[i] * factor, u.space.lower[i], u.space.upper[i])
+                    c = self.forward_cost(xt)
+                    if c < best_cost:
+                        best, best_cost = xt, c
+            if not best_cost < base_cost * (1 - LM_RTOL):
+                break
+            x = self._lm(best, active)
+        x = self._release_bounds(x, active)
+        pred = np.asarray(forward(self.problem, jnp.asarray(x)))
+        return x, self.stat_cost(pred)
+
+    def _release_bounds(self, x: np.ndarray, active: Sequence[int]) -> np.ndarray:
+        """Refit once more with base parameters that ended on a bound put back at their start.
+
+        A parameter that compensated a missing effect (a viscous friction pushed to zero) can
+        stay pinned on its bound after the effect is added: on the bound the gradient still
+        points outwards, a local minimum of the constrained problem.
+        """
+        if self.anchor is None:
+            return x
+        u = self.universe
+        base = np.arange(u.n_base)
+        unit = np.asarray(u.space.to_unit(u.space.from_vector(np.where(
+            u.active_mask(active), x, u.space.lower))))[base]
+        pinned = base[(unit <= 1e-9) | (unit >= 1 - 1e-9)]
+        pinned = [i for i in pinned if not np.isclose(x[i], self.anchor[i])]
+        if not pinned:
+            return x
+        trial = x.copy()
+        trial[pinned] = self.anchor[pinned]
+        trial = self._lm(trial, active)
+        return trial if self.forward_cost(trial) < self.forward_cost(x) else x
+
+    def forward_cost(self, x: np.ndarray) -> float:
+        """The fit cost at ``x`` (one simulation, no derivatives)."""
+        cost = self.fit_cost(np.asarray(forward(self.problem, jnp.asarray(x))))
+        return cost if math.isfinite(cost) else math.inf
+
+    def _system(self, pred: np.ndarray, jac: np.ndarray | None):
+        """Fit residual vector ``[dz(u), √ε·u_quantised]`` and its Jacobian (``None`` if
+        ``jac`` is)."""
+        uu, dz = self.whitened(pred)
+        inner = math.sqrt(INNER_WEIGHT) * self.quantised
+        r = np.concatenate([dz, inner * uu])
+        if jac is None:
+            return r, None
+        outside = (np.abs(uu) > self.halfwidth).astype(float)
+        return r, -np.concatenate([outside[:, None] * jac, inner[:, None] * jac])
+
+    def _lm(self, x0: np.ndarray, active: Sequence[int]) -> np.ndarray:
+        """Levenberg–Marquardt of the base and ``active`` parameters on the bounds
+        (:func:`jaxflex.refine.bounded_levenberg_marquardt`, whose docstring says why discovery
+        does not use the optimistix refinement).
+
+        The coordinates are the physical values over their starting magnitudes: in log
+        coordinates a parameter pushed against a lower bound near zero (a friction term that
+        compensated a missing effect) has a vanishing gradient and cannot come back.
+        """
+        u = self.universe
+        mask = u.active_mask(active)
+        cols = np.flatnonzero(mask)
+        linear = np.zeros_like(mask)
+        x = np.where(mask, x0, u.null)
+        x[cols] = np.clip(x[cols], u.space.lower[cols], u.space.upper[cols])
+        scale = np.maximum(np.abs(x[cols]), u.space.lower[cols])  # coordinates of order one
+
+        def system(p: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+            xt = x.copy()
+            xt[cols] = p * scale
+            pred, jac = self.evaluate(xt, linear, cols)
+            return self._system(pred, jac * scale)
+
+        phi0 = x[cols] / scale
+        phi = bounded_levenberg_marquardt(
+            system, phi0, u.space.lower[cols] / scale, u.space.upper[cols] / scale,
+            max_steps=self.max_iterations, rtol=LM_RTOL,
+        )
+        if phi is not phi0:  # a step was accepted (else x keeps its exact start values)
+            x[cols] = phi * scale
+        return x
+
+    def profile_start(self, x: np.ndarray, active: Sequence[int], slot: int,
+                      guess: Mapping[str, float]) -> tuple[np.ndarray, float]:
+        """Start values of a new slot's parameters (the others kept at ``x``) and the profiled
+        cost there.
+
+        A profile along the diagonal of the new parameters' unit box (a grid, the score test's
+        one-step estimate, then golden-section refinement) of the cost with the fitted
+        parameters re-optimised to first order: the residual is projected off the span of
+        their Jacobian at ``x``. Without that, parameters that compensated the missing effect
+        would pull its start towards the null.
+        """
+        u = self.universe
+        idx = u.index(u.slots[slot].names)
+        sub = ParameterSpace([u.space[n] for n in u.slots[slot].names])
+        cols = np.flatnonzero(u.active_mask(active))
+        pred, jac = self.evaluate(x, np.zeros(len(x), bool), cols)
+        _, jf = self._system(pred, jac)
+        norms = np.linalg.norm(jf, axis=0)
+        q, rr = np.linalg.qr(jf / np.where(norms > 0, norms, 1.0))
+        q = q[:, np.abs(np.diag(rr)) > 1e-10]
+
+        def cost_at(t):
+            xt = x.copy()
+            xt[idx] = np.asarray(sub.to_vector(sub.from_unit(np.full(len(idx), t))))
+            r, _ = self._system(np.asarray(forward(self.problem, jnp.asarray(xt))), None)
+            r = r - q @ (q.T @ r)
+            cost = float(r @ r)
+            return cost if math.isfinite(cost) else math.inf, xt
+
+        grid = np.linspace(0.0, 1.0, PROFILE_POINTS)
+        costs = [cost_at(t)[0] for t in grid]
+        est = np.array([guess.get(o, np.nan) for o in u.slots[slot].own_names])
+        if np.all(np.isfinite(est)) and np.all(est > sub.lower) and np.all(est < sub.upper):
+            t_est = float(np.mean(np.asarray(sub.to_unit(sub.from_vector(est)))))
+            grid, costs = np.append(grid, t_est), costs + [cost_at(t_est)[0]]
+            order = np.argsort(grid)
+            grid, costs = grid[order], [costs[i] for i in order]
+        k = int(np.argmin(costs))
+        lo, hi = grid[max(k - 1, 0)], grid[min(k + 1, len(grid) - 1)]
+        ratio = (math.sqrt(5.0) - 1.0) / 2.0
+        a, b = hi - ratio * (hi - lo), lo + ratio * (hi - lo)
+        fa, fb = cost_at(a)[0], cost_at(b)[0]
+        for _ in range(GOLDEN_STEPS):
+            if fa < fb:
+                hi, b, fb = b, a, fa
+                a = hi - ratio * (hi - lo)
+                fa = cost_at(a)[0]
+            else:
+                lo, a, fa = a, b, fb
+                b = lo + ratio * (hi - lo)
+                fb = cost_at(b)[0]
+        best = min([(costs[k], grid[k]), (fa, a), (fb, b)])
+        return cost_at(best[1])[1], best[0]
+
+    def start(self, x: np.ndarray, active: Sequence[int], candidate: int,
+              guess: Mapping[str, float], with_cost: bool = False):
+        """The slot and start of a candidate (and the profiled cost there): for a profiled
+        candidate the member whose profile (:meth:`profile_start`) reaches the lowest cost."""
+        u = self.universe
+        slots = [i for i, s in enumerate(u.slots) if s.candidate == candidate]
+        starts = [(self.profile_start(x, active, i, guess), i) for i in slots]
+        (x_start, profiled), slot = min(starts, key=lambda item: item[0][1])
+        return (slot, x_start, profiled) if with_cost else (slot, x_start)
+
+    def predictions(self, x: np.ndarray, records: Dataset) -> tuple[Outputs, ...]:
+        return simulate_all(self.universe, x, records)
+
+    def prediction_cost(self, predictions: Sequence[Outputs]) -> float:
+        """``C`` of any predictions of the records (e.g. of another model)."""
+        cost = 0.0
+        for record, pred in zip(self.records, predictions, strict=True):
+            for c in CHANNELS:
+                level = self.noise[c]
+                u = (record.channel(c) - np.asarray(pred.channel(c))) / level.sigma
+                if level.kind == "quantised":
+                    u = np.maximum(np.abs(u) - 0.5 * level.step / level.sigma, 0.0)
+                cost += float(u @ u)
+        return cost
+
+    def discovery_fit(self, x: np.ndarray, active: Sequence[int], cost: float) -> DiscoveryFit:
+        u = self.universe
+        return DiscoveryFit(
+            model=u.model_of(active),
+            params=u.params(x, active),
+            cost=cost,
+            n_params=int(u.active_mask(active).sum()),
+            n_samples=self.n_samples,
+            noise=self.noise,
+        )
+
+    # --- score tests --------------------------------------------------------------------------
+    def score_tests(self, x: np.ndarray, active: Sequence[int], alpha: float,
+                    skip: Iterable[int] = ()) -> list[ScoreResult]:
+        """Score tests of every candidate not in ``skip`` from one Jacobian at ``x``."""
+        u = self.universe
+        mask = u.active_mask(active)
+        skip = (set(skip) | {u.slots[s].candidate for s in active}
+                | set(range(len(u.candidates))) - set(self.tested))
+        slots = [s for s, slot in enumerate(u.slots) if slot.candidate not in skip]
+        # parameters held on a bound are fixed, not free nuisance: partialling them out would
+        # hand their unexplained pull to the projection
+        unit = np.asarray(u.space.to_unit(u.space.from_vector(np.where(mask, x, u.space.lower))))
+        on_bound = (unit <= 1e-9) | (unit >= 1 - 1e-9)
+        nuisance = list(np.flatnonzero(mask & ~on_bound))
+        tested = [int(i) for s in slots for i in u.index(u.slots[s].names)]
+        pred, jac = self.evaluate(x, self._coords(mask), nuisance + tested)
+        _, r = self.whitened(pred)
+        jn = jac[:, : len(nuisance)]
+        columns = dict(zip(tested, jac[:, len(nuisance):].T, strict=True))
+        norms = np.linalg.norm(jn, axis=0)
+        q, rr = np.linalg.qr(jn / np.where(norms > 0, norms, 1.0))
+        q = q[:, np.abs(np.diag(rr)) > 1e-10]
+
+        families: dict[int, list[ScoreResult]] = {}
+        for s in slots:
+            slot = u.slots[s]
+            cand = u.candidates[slot.candidate]
+            jc = np.stack([columns[int(i)] for i in u.index(slot.names)], axis=1)
+            jc = jc - q @ (q.T @ jc)
+            families.setdefault(slot.candidate, []).append(
+                score_statistic(cand, slot, [u.space[n] for n in slot.names], jc.T @ r, jc.T @ jc)
+            )
+        m = max(len(families), 1)
+        results = []
+        for members in families.values():
+            best = max(members, key=lambda t: (t.statistic - t.dof, -t.p_value))
+            p = min(1.0, best.p_value * best.profile)
+            results.append(dataclasses.replace(best, p_value=p, significant=p < alpha / m))
+        results.sort(key=lambda t: (t.p_value, -(t.statistic - t.dof)))
+        return results
+
+
+def simulate_all(universe: Universe, x: np.ndarray, records: Dataset) -> tuple[Outputs, ...]:
+    params = dict(zip(universe.space.names, map(float, x), strict=True))
+    return tuple(simulate(universe.model, params, r.torque, dt=r.dt) for r in records)
+

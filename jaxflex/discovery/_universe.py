@@ -1,0 +1,141 @@
+"""The universe: the base model extended by every candidate at its null, so that one compiled
+function (and one forward-mode Jacobian) serves every score test, refit and discovery run on
+the same records."""
+
+from __future__ import annotations
+
+from collections.abc import Iterable, Mapping, Sequence
+from dataclasses import dataclass
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import numpy as np
+from jaxtyping import Array, ArrayLike, Float
+
+from jaxflex.discovery.candidates import Candidate, Variant
+from jaxflex.effects import Effect
+from jaxflex.model import Model
+from jaxflex.objective import Objective
+from jaxflex.parameters import ParameterSpace
+
+
+@dataclass(frozen=True)
+class Slot:
+    """One candidate profile member inside the universe model."""
+
+    candidate: int
+    member: int
+    effect: Effect  # the original effect
+    names: tuple[str, ...]  # its parameter names in the universe
+    own_names: tuple[str, ...]  # its own parameter names
+
+
+@dataclass(frozen=True)
+class Universe:
+    model: Model  # the starting model followed by every candidate member
+    base: Model  # the starting model
+    candidates: tuple[Candidate, ...]
+    slots: tuple[Slot, ...]
+    space: ParameterSpace
+    null: np.ndarray  # null of each candidate parameter (0 for the base ones, unused)
+    log: np.ndarray  # log-scale flag per parameter
+
+    @classmethod
+    def build(cls, base: Model, candidates: Sequence[Candidate]) -> Universe:
+        members, slots = [], []
+        for i, cand in enumerate(candidates):
+            if cand.name in base.effect_names:
+                raise ValueError(f"candidate {cand.name!r} is already in the model")
+            for j, effect in enumerate(cand.effects):
+                variant = Variant(effect, f"__{i}_{j}")
+                members.append(variant)
+                slots.append(Slot(i, j, effect, tuple(p.name for p in variant.parameters),
+                                   tuple(p.name for p in effect.parameters)))
+        model = base.with_effects(*members)
+        space = model.space
+        null = np.array([0.0 if s.null is None else s.null for s in space.specs])
+        log = np.array([s.log_scale for s in space.specs])
+        return cls(model, base, tuple(candidates), tuple(slots), space, null, log)
+
+    @property
+    def n_base(self) -> int:
+        return len(self.base.space)
+
+    def index(self, names: Iterable[str]) -> np.ndarray:
+        return np.array([self.space.names.index(n) for n in names], dtype=int)
+
+    def vector(self, params: Mapping[str, ArrayLike], active: Sequence[int] = ()) -> np.ndarray:
+        """Universe vector: the base parameters and active slots from ``params`` (own names),
+        every other candidate parameter at its null."""
+        x = self.null.copy()
+        for k, n in enumerate(self.base.space.names):
+            x[k] = float(params[n])
+        for s in active:
+            slot = self.slots[s]
+            for u, own in zip(slot.names, slot.own_names, strict=True):
+                x[self.space.names.index(u)] = float(params[own])
+        return x
+
+    def active_mask(self, active: Sequence[int]) -> np.ndarray:
+        mask = np.zeros(len(self.space), dtype=bool)
+        mask[: self.n_base] = True
+        for s in active:
+            mask[self.index(self.slots[s].names)] = True
+        return mask
+
+    def params(self, x: np.ndarray, active: Sequence[int]) -> dict[str, float]:
+        """Own-named parameters of the base and the active slots."""
+        out = {n: float(x[k]) for k, n in enumerate(self.base.space.names)}
+        for s in active:
+            slot = self.slots[s]
+            for u, own in zip(slot.names, slot.own_names, strict=True):
+                out[own] = float(x[self.space.names.index(u)])
+        return out
+
+    def slot_of(self, candidate: int, member: int) -> int:
+        return next(i for i, s in enumerate(self.slots)
+                    if s.candidate == candidate and s.member == member)
+
+    def model_of(self, active: Sequence[int]) -> Model:
+        """The plain model (no variants) with the active slots' effects."""
+        return self.base.with_effects(*(self.slots[s].effect for s in active))
+
+
+class Problem(eqx.Module):
+    """Whitened predictions of the universe model over the records (:mod:`jaxflex.discovery`)."""
+
+    objective: Objective
+    measured: Float[Array, " N"]  # y/σ, in the objective's element order
+
+    sigma: Float[Array, " N"]
+
+    def predicted(self, x: Float[Array, " d"]) -> Float[Array, " N"]:
+        """``ŷ/σ`` for the universe parameter vector ``x``."""
+        sims = self.objective.simulate(self.objective.space.from_vector(x))
+        return jnp.concatenate([s.reshape(-1) for s in sims]) / self.sigma
+
+
+def _block_impl(problem: Problem, phi, logflag, tangents):
+    """Predictions at ``phi`` and their derivatives along ``BLOCK`` tangents (forward mode).
+
+    ``x = exp(φ)`` where ``logflag``, else ``x = φ``. One compiled function serves every
+    Jacobian of a run (score tests and every refit): the tangents select the columns.
+    """
+
+    def pred(p):
+        return problem.predicted(jnp.where(logflag, jnp.exp(p), p))
+
+    return jax.vmap(lambda t: jax.jvp(pred, (phi,), (t,)), out_axes=(None, 0))(tangents)
+
+
+jacobian_block = eqx.filter_jit(_block_impl)
+
+
+forward = eqx.filter_jit(lambda problem, x: problem.predicted(x))
+
+
+BLOCK = 8
+
+"""Tangent columns per forward-mode pass."""
+

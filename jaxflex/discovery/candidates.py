@@ -1,0 +1,128 @@
+"""Candidate effects: an effect, or a profile of effects (a Stribeck velocity grid) tested as
+one."""
+
+from __future__ import annotations
+
+import dataclasses
+from collections.abc import Iterable
+from dataclasses import dataclass
+
+import equinox as eqx
+from jaxtyping import Array
+
+from jaxflex.effects import Effect, get_effect, library
+from jaxflex.effects._base import Structure
+from jaxflex.parameters import ParameterSpec, Params
+
+
+class Variant(Effect):
+    """An effect under a suffixed name with suffixed parameters, so that several settings of one
+    effect (e.g. Stribeck velocities) can sit side by side in one model."""
+
+    inner: Effect
+    suffix: str = eqx.field(static=True)
+
+    @property
+    def name(self) -> str:  # type: ignore[override]
+        return f"{self.inner.name}{self.suffix}"
+
+    @property
+    def parameters(self) -> tuple[ParameterSpec, ...]:  # type: ignore[override]
+        return tuple(
+            dataclasses.replace(p, name=p.name + self.suffix) for p in self.inner.parameters
+        )
+
+    def _own(self, params: Params) -> Params:
+        return {**params, **{p.name: params[p.name + self.suffix] for p in self.inner.parameters}}
+
+    def structure(self, structure: Structure, params: Params) -> Structure:
+        return self.inner.structure(structure, self._own(params))
+
+    def friction(self, params: Params, velocity: Array, omega_s: float) -> Array:
+        return self.inner.friction(self._own(params), velocity, omega_s)
+
+    def loads(self, structure: Structure, params: Params) -> Array:
+        return self.inner.loads(structure, self._own(params))
+
+    def load_amplitudes(self, params: Params, angle: Array, velocity: Array) -> Array:
+        return self.inner.load_amplitudes(self._own(params), angle, velocity)
+
+    def input_torque(self, params: Params, torque: Array, h: float) -> Array:
+        return self.inner.input_torque(self._own(params), torque, h)
+
+
+@dataclass(frozen=True)
+class Candidate:
+    """A candidate effect: one instance, or a profile of instances over a static setting."""
+
+    name: str
+    effects: tuple[Effect, ...]
+
+    @property
+    def parameters(self) -> tuple[ParameterSpec, ...]:
+        return tuple(self.effects[0].parameters)
+
+    def label(self, i: int) -> str:
+        """The setting of profile member ``i`` (e.g. ``"v_s=0.1"``), '' for a single effect."""
+        if len(self.effects) == 1:
+            return ""
+        member = self.effects[i]
+        parts = []
+        for f in dataclasses.fields(member):
+            value = getattr(member, f.name)
+            varies = len({repr(getattr(e, f.name)) for e in self.effects}) > 1
+            if varies and isinstance(value, (int, float, str)):
+                parts.append(f"{f.name}={value:g}" if isinstance(value, float) else
+                             f"{f.name}={value}")
+        return ", ".join(parts)
+
+
+def parameter_names(candidate: Candidate) -> tuple[str, ...]:
+    """The parameter names of a candidate."""
+    return tuple(p.name for p in candidate.parameters)
+
+
+def as_candidate(item: str | Effect | Candidate) -> Candidate:
+    """A candidate from a name (profiled if its class has ``grid()``), an effect or itself."""
+    if isinstance(item, Candidate):
+        cand = item
+    elif isinstance(item, str):
+        effect = get_effect(item)
+        grid = getattr(type(effect), "grid", None)
+        cand = Candidate(item, tuple(grid()) if callable(grid) else (effect,))
+    elif isinstance(item, Effect):
+        cand = Candidate(item.name, (item,))
+    else:
+        raise TypeError(f"a candidate must be an effect name or Effect, got {type(item).__name__}")
+    for spec in cand.parameters:
+        if spec.null is None:
+            raise ValueError(
+                f"candidate {cand.name!r}: parameter {spec.name} has no null value (the value "
+                "at which the effect vanishes); a score test needs one"
+            )
+    if not cand.parameters:
+        raise ValueError(f"candidate {cand.name!r} has no parameters to test")
+    return cand
+
+
+def candidate_set(
+    candidates: Iterable[str | Effect | Candidate] | None = None,
+) -> tuple[Candidate, ...]:
+    """Candidates by name or instance; ``None``: every library effect (Stribeck profiled)."""
+    if candidates is None:
+        candidates = [e.name for e in library()]
+    elif isinstance(candidates, (str, Effect)):
+        candidates = [candidates]
+    result = tuple(as_candidate(c) for c in candidates)
+    names = [c.name for c in result]
+    if len(set(names)) != len(names):
+        raise ValueError(f"a candidate appears twice: {names}")
+    if not result:
+        raise ValueError("no candidate effects given")
+    return result
+
+
+__all__ = [
+    "Candidate",
+    "candidate_set",
+]

@@ -1,0 +1,300 @@
+"""The discovery loop: fit the base model, then diagnose, score-test, confirm and add effects
+until none is significant and confirmed."""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+import os
+import time
+from collections.abc import Iterable, Mapping, Sequence
+from typing import Any
+
+import numpy as np
+from jaxtyping import ArrayLike
+
+from jaxflex._progress import Progress
+from jaxflex.comparison import DEFAULT_T_END, FRFSettings, compare_record
+from jaxflex.data import Dataset, Record
+from jaxflex.diagnosis import (
+    Diagnosis,
+    Noise,
+    diagnose,
+)
+from jaxflex.diagnosis.noise import CHANNELS
+from jaxflex.discovery._confirm import confirm, profile_scan
+from jaxflex.discovery._engine import Engine
+from jaxflex.discovery.candidates import Candidate, candidate_set, parameter_names
+from jaxflex.discovery.explain import explain
+from jaxflex.discovery.operations import full_params
+from jaxflex.discovery.report import Confirmation, DiscoveryFit, DiscoveryReport, Step
+from jaxflex.discovery.scores import ALPHA, ScoreResult
+from jaxflex.effects import Effect
+from jaxflex.model import Model
+from jaxflex.objective import as_dataset
+from jaxflex.simulate import Outputs
+
+MIN_EXPLAINED = 0.9
+
+"""An effect that leaves structure behind is kept only if it removed this share of the misfit."""
+
+
+MAX_CONFIRM = 3
+
+"""Candidates refitted per step to confirm the score ranking."""
+
+
+BUDGET = (60, 40)
+
+"""(generations, population) of the differential evolution that identifies the base model from
+scratch: a reduced budget (the paper: 100 × 100) — seeded around the rigid-body estimate and
+refined by Levenberg–Marquardt, the search only has to find the right basin."""
+
+
+FAST_BUDGET = (15, 20)
+
+"""The budget under ``JAXFLEX_FAST=1`` (tests, notebooks)."""
+
+
+CONFIRM_RATIO = 0.1
+
+"""Candidates are refitted to confirm them if their score reaches this fraction of the best."""
+
+
+def _metrics(records: Dataset, preds: Sequence[Outputs], holdout: Dataset | None,
+             holdout_preds: Sequence[Outputs] | None) -> tuple[dict, float, dict | None]:
+    """(NRMSE per output, FRF NRMSE, held-out errors), means over the records, as
+    :func:`jaxflex.comparison.compare` computes them."""
+    rows = [compare_record(r, p, "fit", DEFAULT_T_END, FRFSettings(), None, None)
+            for r, p in zip(records, preds, strict=True)]
+    nrmse = {o: float(np.nanmean([r.nrmse[o] for r in rows])) for o in CHANNELS}
+    frf = [r.frf_nrmse for r in rows if math.isfinite(r.frf_nrmse)]
+    held = None
+    if holdout is not None and holdout_preds is not None:
+        rows = [compare_record(r, p, "held-out", DEFAULT_T_END, FRFSettings(), None, None)
+                for r, p in zip(holdout, holdout_preds, strict=True)]
+        held = {key: {o: float(np.nanmean([getattr(r, key)[o] for r in rows]))
+                      for o in CHANNELS} for key in ("nrmse", "relative_error")}
+    return nrmse, float(np.mean(frf)) if frf else math.nan, held
+
+
+def _rigid(records: Dataset):
+    """The convex rigid-body estimate (no torque offset: the flexible models have none either),
+    or ``None`` where the records do not determine it."""
+    from jaxflex.rigid import estimate_rigid
+
+    try:
+        return estimate_rigid(records, offset=False)
+    except ValueError:
+        return None
+
+
+def _rigid_step(engine: Engine, estimate, records: Dataset, holdout: Dataset | None,
+                alpha: float) -> Step:
+    """The first rung of the ladder: the rigid-body model (no link flexibility)."""
+    from jaxflex.rigid import rigid_simulate
+
+    length = engine.universe.base.testbed.length
+    preds = tuple(rigid_simulate(estimate, r.torque, r.dt, length=length) for r in records)
+    held = None
+    if holdout is not None:
+        held = [rigid_simulate(estimate, r.torque, r.dt, length=length) for r in holdout]
+    nrmse, frf, held = _metrics(records, preds, holdout, held)
+    params = {"J_tot": estimate.J_tot, "b_v": estimate.b_v, "tau_c": estimate.tau_c}
+    fit = DiscoveryFit(model=None, params=params, cost=engine.prediction_cost(preds),
+                       n_params=len(params),
+                       n_samples=engine.n_samples, noise=engine.noise)
+    return Step(added=None, fit=fit, nrmse=nrmse, frf_nrmse=frf, holdout=held,
+                diagnosis=diagnose(records, preds, noise=engine.noise, alpha=alpha),
+                label="rigid", predictions=preds)
+
+
+def _initial_params(records: Dataset, model: Model, initial: Any, budget: tuple[int, int],
+                    seed: int, progress: bool, rigid) -> dict[str, float]:
+    """The starting fit of the base model: ``initial``, or :func:`jaxflex.identification.identify`
+    (differential evolution, ``budget = (generations, population)``, seeded around the
+    rigid-body estimate, then Levenberg–Marquardt)."""
+    if initial is not None:
+        return full_params(model, initial)
+    from jaxflex.identification import identify
+
+    seeds = None
+    if rigid is not None:
+        from jaxflex.rigid import warm_start
+
+        space = model.space
+        units = warm_start(rigid, space, population=budget[1], seed=seed)
+        seeds = [{k: float(v) for k, v in space.from_unit(u).items()} for u in units]
+    fit = identify(records, model, seed=seed, generations=budget[0], population=budget[1],
+                   progress=progress, init_population=seeds, intervals=False)
+    return full_params(model, fit)
+
+
+def _fast() -> bool:
+    return os.environ.get("JAXFLEX_FAST", "") not in ("", "0")
+
+
+def discover(
+    records: Dataset | Iterable[Record],
+    holdout: Dataset | Iterable[Record] | None = None,
+    model: Model | None = None,
+    candidates: Iterable[str | Effect | Candidate] | None = None,
+    max_steps: int = 4,
+    alpha: float = ALPHA,
+    seed: int = 0,
+    progress: bool = False,
+    *,
+    initial: Mapping[str, ArrayLike] | Any = None,
+    budget: int | tuple[int, int] | None = None,
+    noise: Noise | None = None,
+    max_confirm: int = MAX_CONFIRM,
+) -> DiscoveryReport:
+    """Find the effects the model is missing, one at a time (see :mod:`jaxflex.discovery`).
+
+    ``model`` is the starting structure (default: the reference testbed). ``initial`` is its
+    fitted parameters (a mapping or a fit); without it the base model is identified from scratch
+    by differential evolution and Levenberg–Marquardt
+    (:func:`jaxflex.identification.identify`), with ``budget`` generations or
+    ``(generations, population)`` (default :data:`BUDGET`, :data:`FAST_BUDGET` with
+    ``JAXFLEX_FAST=1``). ``alpha`` is the family-wise level of each step, Bonferroni over the
+    candidates. ``noise`` gives channels' noise levels, a white σ in the channel's unit or a
+    :class:`~jaxflex.diagnosis.NoiseLevel` (e.g. ``{"joint_angle": 1e-4}``); the others are
+    estimated from the first fit's residuals (:func:`jaxflex.diagnosis.estimate_noise`), and the
+    report states each level and how it was obtained. Returns a :class:`DiscoveryReport`.
+    """
+    t0 = time.perf_counter()
+    records = as_dataset(records)
+    holdout = as_dataset(holdout) if holdout is not None else None
+    model = Model() if model is None else model
+    if not isinstance(model, Model):
+        raise TypeError(f"model must be a jaxflex Model, got {type(model).__name__}")
+    if isinstance(max_steps, bool) or not isinstance(max_steps, int) or max_steps < 0:
+        raise ValueError(f"max_steps={max_steps!r} must be an int >= 0")
+    if not 0 < alpha < 1:
+        raise ValueError(f"alpha={alpha!r} must lie in (0, 1)")
+    if budget is None:
+        budget = FAST_BUDGET if _fast() else BUDGET
+    budget = (int(budget), BUDGET[1]) if isinstance(budget, (int, np.integer)) else budget
+    if len(budget) != 2 or min(budget) < 1:
+        raise ValueError(f"budget={budget!r} must be generations or (generations, population)")
+    budget = (int(budget[0]), int(budget[1]))
+    cands = tuple(c for c in candidate_set(candidates) if c.name not in model.effect_names)
+    rigid = _rigid(records)
+    start = _initial_params(records, model, initial, budget, seed, progress, rigid)
+    engine = Engine.build(model, cands, records, start, noise)
+    u = engine.universe
+    names = [c.name for c in u.candidates]
+
+    x, cost = engine.fit(u.vector(start), ())
+    active: list[int] = []
+    steps: list[Step] = []
+    if rigid is not None:
+        steps.append(_rigid_step(engine, rigid, records, holdout, alpha))
+    added: dict[str, Any] = {}
+    for _ in Progress(range(max_steps + 1), label="discover", enabled=progress):
+        preds = engine.predictions(x, records)
+        diag = diagnose(records, preds, noise=engine.noise, alpha=alpha)
+        held_preds = engine.predictions(x, holdout) if holdout is not None else None
+        nrmse, frf, held = _metrics(records, preds, holdout, held_preds)
+        ranking: list[ScoreResult] = []
+        confirmations: list[Confirmation] = []
+        best = None
+        if len(active) < max_steps and len(active) < len(cands):
+            ranking = engine.score_tests(x, active, alpha)
+            m = len(ranking)
+            top = max((r.statistic for r in ranking), default=0.0)
+            contenders = [r for r in ranking
+                          if r.significant and r.statistic >= CONFIRM_RATIO * top]
+            starts: dict[str, tuple[int, np.ndarray]] = {}
+            if not contenders and not diag.consistent_with_noise:
+                ranking, starts = profile_scan(engine, x, active, ranking, alpha / m)
+                contenders = sorted((r for r in ranking if r.profile_drop is not None
+                                     and r.profile_p_value < alpha / m),
+                                    key=lambda r: -r.profile_drop)
+            for r in contenders[:max_confirm]:
+                conf, slot, x1, cost1 = confirm(engine, x, cost, active,
+                                                names.index(r.effect), r.estimate, alpha / m,
+                                                starts.get(r.effect))
+                confirmations.append(conf)
+                if conf.confirmed and (best is None or conf.lr > best[0].lr):
+                    best = (conf, slot, x1, cost1)
+            ranking = _final_ranking(ranking, confirmations, u.candidates, diag)
+        steps.append(Step(
+            added=added.get("name"), fit=engine.discovery_fit(x, active, cost), nrmse=nrmse,
+            frf_nrmse=frf, holdout=held, diagnosis=diag, ranking=tuple(ranking),
+            confirmations=tuple(confirmations), lr=added.get("lr"),
+            p_value=added.get("p"), explained=added.get("explained"), predictions=preds,
+        ))
+        if best is None:
+            break
+        conf, slot, x, cost = best
+        active = active + [slot]
+        added = {"name": conf.effect, "lr": conf.lr, "p": conf.p_value,
+                 "explained": conf.explained}
+
+    steps, withdrawn = _withdraw(steps)
+    unexplained = steps[-1].diagnosis.unexplained()
+    if unexplained is not None:
+        if steps[-1].ranking or withdrawn:
+            note = "no candidate effect explains it"
+        elif sum(s.added is not None for s in steps) >= max_steps:
+            note = f"the loop stopped at max_steps={max_steps} before testing more candidates"
+        else:
+            note = "every candidate is in the model already"
+        if withdrawn:
+            note += (f" ({', '.join(withdrawn)} reduced the misfit but left most of it; "
+                     "withdrawn)")
+        unexplained["message"] = f"{unexplained['message']}; {note}"
+    return DiscoveryReport(
+        steps=tuple(steps),
+        unexplained=unexplained,
+        withdrawn=tuple(withdrawn),
+        alpha=alpha,
+        candidates=tuple(c.name for c in cands),
+        records=records,
+        holdout=holdout,
+        settings={"alpha": alpha, "correction": "Bonferroni over the candidates of each step",
+                  "max_steps": max_steps, "max_confirm": max_confirm, "seed": seed,
+                  "budget": budget if initial is None else None,
+                  "initial": "given" if initial is not None else "differential evolution",
+                  "noise": {c: v.to_dict() for c, v in engine.noise.items()},
+                  "min_explained": MIN_EXPLAINED},
+        wall_time=time.perf_counter() - t0,
+        noise_floor={c: d.noise_floor_nrmse for c, d in steps[-1].diagnosis.channels.items()},
+    )
+
+
+def _final_ranking(ranking: Sequence[ScoreResult], confirmations: Sequence[Confirmation],
+                   cands: Sequence[Candidate], diag: Diagnosis) -> list[ScoreResult]:
+    """The ranking after the refits: confirmed candidates by their likelihood ratio, then the
+    others by their score; each with its explanation (refit values where refitted)."""
+    names = [c.name for c in cands]
+    refits = {c.effect: c for c in confirmations}
+    out = []
+    for r in ranking:
+        cand = cands[names.index(r.effect)]
+        conf = refits.get(r.effect)
+        member = conf.member if conf else r.member
+        fitted = {n: conf.params[n] for n in parameter_names(cand)} if conf else None
+        if conf and conf.member != r.member:
+            r = dataclasses.replace(r, setting=conf.setting, member=member)
+        out.append(dataclasses.replace(
+            r, explanation=explain(r, cand.effects[member], diag, fitted)))
+    confirmed = {c.effect: c.lr for c in confirmations if c.confirmed}
+    return sorted(out, key=lambda r: (r.effect not in confirmed, -confirmed.get(r.effect, 0.0)))
+
+
+def _withdraw(steps: list[Step]) -> tuple[list[Step], list[str]]:
+    """Steps without effects that leave structure behind yet removed less than
+    :data:`MIN_EXPLAINED` of the misfit: the run is cut before the first such effect."""
+    if steps[-1].diagnosis.consistent_with_noise:
+        return steps, []
+    for i, step in enumerate(steps):
+        if step.added is not None and step.explained < MIN_EXPLAINED:
+            return steps[:i], [s.added for s in steps[i:] if s.added]
+    return steps, []
+
+
+__all__ = [
+    "discover",
+]

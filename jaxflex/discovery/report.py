@@ -1,0 +1,228 @@
+"""What discovery returns: the fits, confirmations, steps and the report of a run."""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from typing import Any
+
+from jaxflex._io import provenance, to_jsonable
+from jaxflex.data import Dataset
+from jaxflex.diagnosis import (
+    Diagnosis,
+    NoiseLevel,
+)
+from jaxflex.diagnosis.noise import UNITS
+from jaxflex.discovery.scores import ScoreResult
+from jaxflex.model import Model
+from jaxflex.simulate import Outputs
+
+
+@dataclass(frozen=True)
+class DiscoveryFit:
+    """A fitted model structure: the model, its parameters and the discovery-likelihood cost.
+
+    ``cost`` is ``C`` of :mod:`jaxflex.discovery` (``−2 log L`` up to a constant), ``bic`` is
+    ``C + n_params·ln(n_samples)``.
+    """
+
+    model: Model | None  # None for the rigid-body rung of the ladder
+    params: dict[str, float]
+    cost: float
+    n_params: int
+    n_samples: int
+    noise: dict[str, NoiseLevel]
+
+    @property
+    def effects(self) -> tuple[str, ...]:
+        return () if self.model is None else self.model.effect_names
+
+    @property
+    def bic(self) -> float:
+        return self.cost + self.n_params * math.log(self.n_samples)
+
+
+@dataclass(frozen=True)
+class Confirmation:
+    """The refit of one candidate: its likelihood-ratio test and BIC change.
+
+    ``lr = C₀ − C₁`` (the drop of ``−2 log L``), ``p_value`` its p-value (one parameter on a
+    boundary: ``½ P(χ²₁ > lr)``), ``delta_bic`` the BIC change, ``explained`` the share of the
+    misfit above the noise it removed; ``member`` the profile member refitted (``setting``).
+    """
+
+    effect: str
+    lr: float
+    p_value: float
+    delta_bic: float
+    explained: float
+    confirmed: bool
+    params: dict[str, float]
+    member: int = 0
+    setting: str = ""
+
+
+@dataclass(frozen=True)
+class Step:
+    """One model structure of a discovery run and how well it fits."""
+
+    added: str | None
+    fit: DiscoveryFit
+    nrmse: dict[str, float]  # percent, mean over records
+    frf_nrmse: float  # percent, mean over records
+    holdout: dict[str, dict[str, float]] | None
+    diagnosis: Diagnosis | None
+    ranking: tuple[ScoreResult, ...] = ()
+    confirmations: tuple[Confirmation, ...] = ()
+    lr: float | None = None
+    p_value: float | None = None
+    explained: float | None = None
+    label: str = ""
+    predictions: tuple[Outputs, ...] = field(default=(), repr=False)
+
+    @property
+    def effects(self) -> tuple[str, ...]:
+        return self.fit.effects
+
+    @property
+    def bic(self) -> float:
+        return self.fit.bic
+
+    @property
+    def structure(self) -> str:
+        return self.label or (" + ".join(("base",) + self.effects))
+
+    def to_dict(self) -> dict[str, Any]:
+        return {
+            "added": self.added,
+            "structure": self.structure,
+            "effects": list(self.effects),
+            "params": dict(self.fit.params),
+            "nrmse": dict(self.nrmse),
+            "frf_nrmse": self.frf_nrmse,
+            "holdout": self.holdout,
+            "bic": self.bic,
+            "cost": self.fit.cost,
+            "n_params": self.fit.n_params,
+            "lr": self.lr,
+            "lr_p_value": self.p_value,
+            "explained": self.explained,
+        }
+
+
+@dataclass(frozen=True)
+class DiscoveryReport:
+    """What :func:`discover` found: the steps, the ranking at each step, what is unexplained."""
+
+    steps: tuple[Step, ...]
+    unexplained: dict[str, Any] | None
+    withdrawn: tuple[str, ...]
+    alpha: float
+    candidates: tuple[str, ...]
+    records: Dataset
+    holdout: Dataset | None
+    settings: dict[str, Any]
+    wall_time: float
+    noise_floor: dict[str, float]
+
+    @property
+    def final(self) -> Step:
+        return self.steps[-1]
+
+    @property
+    def base(self) -> Step:
+        """The first flexible model (after the rigid-body rung, if any)."""
+        return next(s for s in self.steps if s.label != "rigid")
+
+    @property
+    def model(self) -> Model:
+        return self.final.fit.model
+
+    @property
+    def params(self) -> dict[str, float]:
+        return self.final.fit.params
+
+    @property
+    def added(self) -> tuple[str, ...]:
+        """Effects added, in order."""
+        return tuple(s.added for s in self.steps if s.added)
+
+    @property
+    def noise(self) -> dict[str, NoiseLevel]:
+        """The noise level each channel used (given or estimated; ``describe()`` says how)."""
+        return self.final.fit.noise
+
+    @property
+    def rankings(self) -> tuple[tuple[ScoreResult, ...], ...]:
+        return tuple(s.ranking for s in self.steps if s.ranking)
+
+    def table(self) -> str:
+        """The step table: structure → NRMSE per output, FRF NRMSE, held-out error, BIC."""
+        head = ["step", "structure", "angle NRMSE %", "tip acc NRMSE %", "FRF NRMSE %",
+                "held-out angle %", "held-out acc %", "BIC"]
+        rows = []
+        for i, s in enumerate(self.steps):
+            ho = s.holdout["relative_error"] if s.holdout else None
+            rows.append([
+                str(i), s.structure, f"{s.nrmse['joint_angle']:.4g}",
+                f"{s.nrmse['tip_acceleration']:.4g}", _fmt(s.frf_nrmse),
+                _fmt(100 * ho["joint_angle"]) if ho else "-",
+                _fmt(100 * ho["tip_acceleration"]) if ho else "-",
+                f"{s.bic:.6g}" if math.isfinite(s.bic) else "-",
+            ])
+        widths = [max(len(r[k]) for r in rows + [head]) for k in range(len(head))]
+        lines = ["  ".join(c.ljust(w) for c, w in zip(row, widths, strict=True)).rstrip()
+                 for row in [head] + rows]
+        floor = ", ".join(f"{k} {v:.3g} %" for k, v in self.noise_floor.items())
+        lines.append(f"noise floor (NRMSE the measurement noise alone gives): {floor}")
+        for channel, level in self.noise.items():
+            lines.append(f"noise level {channel}: σ = {level.sigma:.4g} {UNITS[channel]} "
+                         f"({level.describe()})")
+        for s in self.steps:
+            if s.ranking:
+                top = ", ".join(
+                    f"{r.effect} (S={r.statistic:.3g}, p={r.p_value:.2g}"
+                    + (f", profile drop {r.profile_drop:.3g}" if r.profile_drop else "") + ")"
+                    for r in s.ranking[:3])
+                lines.append(f"after '{s.structure}': top candidates {top}")
+        if self.withdrawn:
+            lines.append(f"withdrawn (did not explain the misfit): {', '.join(self.withdrawn)}")
+        if self.unexplained:
+            lines.append(f"UNEXPLAINED: {self.unexplained['message']}")
+        else:
+            lines.append("residuals are consistent with the measurement noise")
+        return "\n".join(lines) + "\n"
+
+    def explanations(self) -> list[str]:
+        """Plain-language explanation of every added effect and the top-ranked candidates."""
+        lines = []
+        for s in self.steps:
+            for r in s.ranking[:3]:
+                if r.explanation:
+                    lines.append(r.explanation)
+        return lines
+
+    def to_dict(self) -> dict[str, Any]:
+        """The JSON contract of ``jaxflex discover --json``."""
+        return to_jsonable({
+            "steps": [s.to_dict() for s in self.steps],
+            "ranking": [[r.to_dict() for r in s.ranking] for s in self.steps if s.ranking],
+            "unexplained": self.unexplained,
+            "withdrawn": list(self.withdrawn),
+            "noise_floor": self.noise_floor,
+            "settings": self.settings,
+            "wall_time_s": self.wall_time,
+            "provenance": provenance(),
+        })
+
+
+def _fmt(x: float) -> str:
+    return f"{x:.4g}" if x is not None and math.isfinite(x) else "-"
+
+
+__all__ = [
+    "DiscoveryFit",
+    "Confirmation",
+    "Step",
+    "DiscoveryReport",
+]
