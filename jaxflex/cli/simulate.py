@@ -1,4 +1,8 @@
-"""``jaxflex simulate``: simulate one input and write a record (and optionally a figure)."""
+"""``jaxflex simulate``: simulate one input and write a record (and optionally a figure).
+
+With ``--arm``, the arm's model under its drive, written in the arm's columns
+(:func:`jaxflex.measured.logged_record`).
+"""
 
 from __future__ import annotations
 
@@ -31,7 +35,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         help="simulate the arm under a named torque input and write a record CSV",
         description="Simulate the arm under a named torque input and write the record format "
         "of the testbed (time, torque, joint_angle, tip_acceleration, plus joint_velocity and "
-        "tip_deflection).",
+        "tip_deflection); with --arm, the arm's model under its drive, written as the rig logs "
+        "it (time, the drive's input column, every sensor's channel).",
     )
     parser.add_argument("--input", required=True, choices=INPUT_NAMES, help="torque input shape")
     parser.add_argument("--amplitude", type=float,
