@@ -8,7 +8,8 @@ simulator output it reads (``(reading − offset)/(gain·factor)``, see
 :meth:`~jaxflex.sensors.Sensor.simulated_output`). The input stays in the drive's units in the
 ``torque`` slot: the arm's model turns it into hub torque through its drive.
 
-:func:`validate` simulates a fit on such records and scores each channel (NRMSE, percent).
+:func:`validate` simulates a fit on such records and scores each channel (NRMSE, percent);
+:func:`logged_record` goes the other way: what the rig would log, simulated.
 """
 
 from __future__ import annotations
@@ -21,6 +22,7 @@ from jaxflex.arm import Arm
 from jaxflex.data import Record
 from jaxflex.effects import Effect
 from jaxflex.metrics import nrmse
+from jaxflex.sensors import readings
 from jaxflex.simulate import simulate
 
 REST_SPAN = 0.05
@@ -81,12 +83,14 @@ def model_record(
             )
         value = (reading - sensor.offset) / (sensor.gain * factor)
         outputs[output] = value - float(np.mean(value[:n_rest]))
-    extras = {c: v for c, v in outputs.items() if c != "joint_angle"}
+    standard = ("joint_angle", "tip_acceleration")
+    extras = {c: v for c, v in outputs.items() if c not in standard}
     mapping = ", ".join(f"{s.channel} -> {o}" for s, o, _ in chosen)
     return Record(
         time=cut.time,
         torque=cut.channel(drive),
         joint_angle=outputs.get("joint_angle"),
+        tip_acceleration=outputs.get("tip_acceleration"),
         extras=extras,
         name=record.name,
         metadata=cut.metadata
@@ -127,4 +131,33 @@ def validate(
     return scores
 
 
-__all__ = ["REST_SPAN", "fit_channels", "model_record", "validate"]
+def logged_record(
+    arm: Arm,
+    params: Mapping[str, float],
+    time: np.ndarray,
+    signal: np.ndarray,
+    *,
+    effects: Sequence[Effect] = (),
+    seed: int | None = None,
+    name: str = "simulated",
+    metadata: Mapping[str, str] | None = None,
+) -> Record:
+    """The record the rig would log under ``signal`` (in the drive's units): the drive's column
+    and every sensor's reading, exact, or with each sensor's noise and quantisation drawn from
+    ``seed`` (:meth:`~jaxflex.sensors.Sensor.observe`)."""
+    if not arm.sensors:
+        raise ValueError(f"arm {arm.name!r} has no sensors: a record needs at least one output")
+    time = np.asarray(time, dtype=np.float64)
+    model = arm.model(*effects)
+    outputs = simulate(model, dict(params), signal, float(time[1] - time[0]))
+    rng = None if seed is None else np.random.default_rng(seed)
+    columns = {arm.drive.name: np.asarray(signal, dtype=np.float64)}
+    for sensor in arm.sensors:
+        reading = np.asarray(readings([sensor], model, outputs)[sensor.channel])
+        columns[sensor.channel] = reading if rng is None else sensor.observe(reading, rng)
+    standard = {c: columns.pop(c, None) for c in ("torque", "joint_angle", "tip_acceleration")}
+    return Record(time=time, **standard, extras=columns, name=name,
+                  metadata={"arm": arm.name} | dict(metadata or {}))
+
+
+__all__ = ["REST_SPAN", "fit_channels", "logged_record", "model_record", "validate"]

@@ -142,7 +142,8 @@ def test_two_sided_score_for_an_interior_null():
 def test_candidates_by_name_profile_stribeck_and_validate():
     cands = candidate_set()
     assert {c.name for c in cands} == {"payload", "delay", "motor_lag", "gravity",
-                                       "root_compliance", "stribeck", "torque_offset"}
+                                       "root_compliance", "stribeck", "torque_offset",
+                                       "strain_gauge_gain"}
     stribeck = next(c for c in cands if c.name == "stribeck")
     assert len(stribeck.effects) == len(Stribeck.grid()) and stribeck.label(0).startswith("v_s=")
     assert len(candidate_set([Stribeck(v_s=0.2)])[0].effects) == 1

@@ -39,6 +39,7 @@ NAMES = (
     "motor_lag",
     "payload",
     "root_compliance",
+    "strain_gauge_gain",
     "stribeck",
     "torque_offset",
 )
@@ -358,7 +359,8 @@ def test_gravity_swings_the_free_arm_like_a_compound_pendulum(gravity_run):
 
 # --- gradients at the null --------------------------------------------------------------------
 def _loss(outputs) -> jnp.ndarray:
-    return jnp.mean(outputs.joint_angle**2) + 1e-3 * jnp.mean(outputs.tip_acceleration**2)
+    return (jnp.mean(outputs.joint_angle**2) + 1e-3 * jnp.mean(outputs.tip_acceleration**2)
+            + 1e3 * jnp.mean(outputs.root_strain**2))
 
 
 def test_gradients_at_the_null_are_finite_nonzero_and_match_finite_differences():
@@ -375,7 +377,7 @@ def test_gradients_at_the_null_are_finite_nonzero_and_match_finite_differences()
         return _loss(simulate_core(model, {**base, **effect_params}, torque, DT))
 
     value, grads = loss(nulls)
-    assert set(grads) == {"d", "phi", "T_m", "m_p", "J_p", "c_r", "delta_tau_s", "tau_0"}
+    assert set(grads) == {"d", "phi", "T_m", "m_p", "J_p", "c_r", "e_sg", "delta_tau_s", "tau_0"}
     for name, grad in grads.items():
         step = 1e-3 * model.space[name].lower
         difference = (loss({**nulls, name: jnp.asarray(step, dtype=jnp.float64)})[0] - value) / step

@@ -132,3 +132,16 @@ def test_a_rotflex_like_log_gives_back_its_parameters():
     for name in ("alpha", "beta"):
         close = fit.params[name] == pytest.approx(TRUE[name], rel=0.2)
         assert close or name in fit.poorly_identifiable, (name, fit.summary())
+
+
+def test_a_tip_accelerometer_maps_onto_the_tip_acceleration_column():
+    arm = load_arm(ARMS / "reference.toml")
+    t = np.arange(0.0, 0.6, arm.testbed.dt)
+    torque = np.where(t < 0.1, 0.0, 0.2)
+    out = simulate(arm.model(), arm.reference_parameters(), torque, arm.testbed.dt)
+    record = Record(time=t + 2.0, torque=torque, joint_angle=np.asarray(out.joint_angle),
+                    tip_acceleration=np.asarray(out.tip_acceleration), name="logged")
+    ready = model_record(arm, record)
+    assert ready.extras == {}
+    np.testing.assert_array_equal(ready.tip_acceleration, record.tip_acceleration)
+    assert fit_channels(arm, record) == ("joint_angle", "tip_acceleration")

@@ -14,6 +14,7 @@ import argparse
 import math
 
 from jaxflex.cli import UsageError
+from jaxflex.cli._arm import add_arm_arguments, arm_of
 from jaxflex.cli._checks import (
     FIGURE_SUFFIXES,
     RECORD_SUFFIXES,
@@ -42,7 +43,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     )
     p.add_argument(
         "--max-torque", type=positive_float, required=True, metavar="NM",
-        help="peak torque limit (N m)",
+        help="peak torque limit (N m); with --arm, the peak of the drive's input in its unit "
+        "(V for a voltage drive, A for a current drive)",
     )
     p.add_argument(
         "--rms-torque",
@@ -107,6 +109,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     )
     p.add_argument("--overwrite", action="store_true", help="replace existing output files")
     add_max_samples(p)
+    add_arm_arguments(p, window=False)
     p.set_defaults(func=run)
 
 
@@ -114,13 +117,19 @@ def run(args: argparse.Namespace) -> int:
     from jaxflex._io import all_or_nothing
     from jaxflex.data import save_record
     from jaxflex.design import compare_inputs, design_input, interval_table, paper_inputs
-    from jaxflex.testbed import Testbed
+    from jaxflex.model import Model
 
+    found = arm_of(args)
     out, *plots = check_outputs(
         [("--out", args.out, RECORD_SUFFIXES), ("--plot", args.plot, FIGURE_SUFFIXES),
          ("--plot-intervals", args.plot_intervals, FIGURE_SUFFIXES)],
-        overwrite=args.overwrite,
+        overwrite=args.overwrite, inputs=(found or ())[1:],
     )
+    if found is not None and args.plot is not None:
+        raise UsageError("--plot is not available with --arm (--plot-intervals is)")
+    arm = None if found is None else found[0]
+    model = Model() if arm is None else arm.model()
+    names = None if arm is None else [n for n in model.space.names if n not in arm.fixed]
     rms_torque = args.rms_torque
     if rms_torque is None:
         rms_torque = DEFAULT_RMS_FRACTION * args.max_torque
@@ -129,10 +138,12 @@ def run(args: argparse.Namespace) -> int:
             f"--rms-torque {rms_torque:g} exceeds --max-torque {args.max_torque:g}; the RMS of "
             "a torque cannot exceed its peak"
         )
-    dt = Testbed().dt
+    dt = model.testbed.dt
     check_size(args.duration / dt + 1, f"--duration {args.duration:g} s at {dt:g} s",
-               limit=max_samples(args.max_samples))
+               n_elements=model.testbed.n_elements, limit=max_samples(args.max_samples))
     result = design_input(
+        model=model,
+        names=names,
         duration=args.duration,
         max_torque=args.max_torque,
         rms_torque=rms_torque,
@@ -156,10 +167,20 @@ def run(args: argparse.Namespace) -> int:
     rms = result.achieved["rms_torque"]
     comparison = {"designed": {"intervals": result.intervals, "achieved": result.achieved}}
     comparison |= compare_inputs(
-        paper_inputs(rms, duration=args.duration, dt=float(result.settings["dt"]))
+        paper_inputs(rms, duration=args.duration, dt=float(result.settings["dt"])),
+        model, names=names,
     )
+    record = result.to_record(out.stem or "designed")
+    if arm is not None:
+        from jaxflex.measured import logged_record
+
+        note = {"note": record.metadata["note"].replace(
+            "joint_angle and tip_acceleration are", "the sensor channels are"
+        )}
+        record = logged_record(arm, result.nominal, result.time, result.torque, name=record.name,
+                               metadata=record.metadata | note | {"arm file": str(arm.source)})
     with all_or_nothing():
-        save_record(result.to_record(out.stem or "designed"), out, overwrite=args.overwrite)
+        save_record(record, out, overwrite=args.overwrite)
         if args.plot:
             from jaxflex.plots._style import save_figure
             from jaxflex.plots.design import plot_design

@@ -11,7 +11,14 @@ from __future__ import annotations
 
 import argparse
 
-from jaxflex.cli import UsageError, load_records
+from jaxflex.cli import UsageError
+from jaxflex.cli._arm import (
+    add_arm_arguments,
+    arm_of,
+    load_rig_records,
+    model_records,
+    parse_window,
+)
 from jaxflex.cli._checks import (
     JSON_SUFFIXES,
     check_directory,
@@ -53,6 +60,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--overwrite", action="store_true", help="replace existing output files")
     add_record_options(p)
     p.add_argument("--progress", action="store_true", help="show progress on the terminal")
+    add_arm_arguments(p)
     p.set_defaults(func=run)
 
 
@@ -69,15 +77,17 @@ def run(args: argparse.Namespace) -> int:
         candidates = [n.strip() for n in args.effects.split(",") if n.strip()]
         candidate_set(candidates)  # unknown names fail here, listing the known ones
     keywords = fit_keywords(args, discover)
-    model, initial = model_from(args.effect), None
+    model, initial, fit = model_from(args.effect), None, None
     if args.initial:
         if args.effect:
             raise UsageError("--effect with --initial: the fit file fixes the model's effects")
-        model, initial, _ = read_fit("--initial", args.initial, plain_parameters=True)
-    records = load_records(args.data, resample=args.resample, unit_check=args.unit_check)
+        model, initial, fit = read_fit("--initial", args.initial, plain_parameters=True)
+    found = arm_of(args, fit)
+    window = parse_window(args.window)
+    records = load_rig_records(args.data, args)
     holdout = None
     if args.holdout:
-        holdout = load_records(args.holdout, resample=args.resample, unit_check=args.unit_check)
+        holdout = load_rig_records(args.holdout, args)
         for r in holdout:
             if any(same_file(r.source, f.source) for f in records):
                 raise UsageError(f"--holdout {r.source}: is also a record to fit; a held-out "
@@ -90,7 +100,13 @@ def run(args: argparse.Namespace) -> int:
         targets += [("--report", p, None)
                     for p in report_paths(records.names, directory, args.format)]
     check_outputs(targets, overwrite=args.overwrite,
-                  inputs=[*sources(records), *sources(holdout or ()), args.initial])
+                  inputs=[*sources(records), *sources(holdout or ()), args.initial,
+                          *(found or ())[1:]])
+    if found is not None:
+        arm, _ = found
+        model = arm.model(*model.effects)
+        records = discovered_records(arm, records, window)
+        holdout = None if holdout is None else discovered_records(arm, holdout, window)
     report = discover(
         records, holdout=holdout, model=model, candidates=candidates,
         max_steps=args.max_steps, alpha=args.alpha, seed=args.seed, progress=args.progress,
@@ -114,3 +130,20 @@ def run(args: argparse.Namespace) -> int:
         names = ", ".join(p.name for p in paths[bool(args.json):])
         print(f"wrote {len(paths) - bool(args.json)} files to {args.report}: {names}")
     return 0
+
+
+def discovered_records(arm, records, window):
+    """Records as the rig logged them, mapped onto the arm's model; ``discover`` tests its
+    candidates on the reference outputs, so every record must give all of them."""
+    from jaxflex.data import OUTPUT_COLUMNS
+
+    ready = model_records(arm, records, window)
+    for r in ready:
+        missing = [c for c in OUTPUT_COLUMNS if c not in r.columns]
+        if missing:
+            raise UsageError(
+                f"record {r.name!r}: discover fits {', '.join(OUTPUT_COLUMNS)}, but arm "
+                f"{arm.name!r}'s sensors give it {r.metadata['sensors']}, without {missing}; "
+                "fit it with `jaxflex identify --arm` and score it with `jaxflex validate`"
+            )
+    return ready

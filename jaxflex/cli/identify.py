@@ -10,8 +10,8 @@ from __future__ import annotations
 import argparse
 import math
 
-from jaxflex.cli import UsageError, load_records
-from jaxflex.cli._arm import add_window_argument, identify_with_arm
+from jaxflex.cli import UsageError
+from jaxflex.cli._arm import add_arm_arguments, arm_of, identify_with_arm, load_rig_records
 from jaxflex.cli._checks import (
     FIGURE_SUFFIXES,
     JSON_SUFFIXES,
@@ -52,8 +52,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--out", required=True, metavar="FIT.json", help="where to write the fit")
     p.add_argument("--plot", metavar="FIG.png",
                    help="also write a figure: convergence and parameter intervals")
-    p.add_argument("--arm", metavar="ARM.toml", help="the rig's arm file (see jaxflex.arm)")
-    add_window_argument(p)
+    add_arm_arguments(p)
     p.set_defaults(func=run)
 
 
@@ -61,11 +60,12 @@ def run(args: argparse.Namespace) -> int:
     from jaxflex._io import all_or_nothing
     from jaxflex.identification import identify
 
-    if args.arm is not None or args.window is not None:
-        if args.arm is None or args.plot is not None:
-            raise UsageError("--window needs --arm; --plot is not available with --arm")
-        return identify_with_arm(args)
-    records = load_records(args.data, resample=args.resample, unit_check=args.unit_check)
+    found = arm_of(args)
+    if found is not None:
+        if args.plot is not None:
+            raise UsageError("--plot is not available with --arm")
+        return identify_with_arm(args, *found)
+    records = load_rig_records(args.data, args)
     out, *plot = check_outputs(
         [("--out", args.out, JSON_SUFFIXES), ("--plot", args.plot, FIGURE_SUFFIXES)],
         overwrite=args.overwrite, inputs=sources(records),

@@ -1,4 +1,8 @@
-"""``jaxflex simulate``: simulate one input and write a record (and optionally a figure)."""
+"""``jaxflex simulate``: simulate one input and write a record (and optionally a figure).
+
+With ``--arm``, the arm's model under its drive, written in the arm's columns
+(:func:`jaxflex.measured.logged_record`).
+"""
 
 from __future__ import annotations
 
@@ -8,6 +12,7 @@ import math
 import numpy as np
 
 from jaxflex.cli import UsageError
+from jaxflex.cli._arm import add_arm_arguments, arm_of
 from jaxflex.cli._checks import (
     FIGURE_SUFFIXES,
     RECORD_SUFFIXES,
@@ -30,10 +35,13 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         help="simulate the arm under a named torque input and write a record CSV",
         description="Simulate the arm under a named torque input and write the record format "
         "of the testbed (time, torque, joint_angle, tip_acceleration, plus joint_velocity and "
-        "tip_deflection).",
+        "tip_deflection); with --arm, the arm's model under its drive, written as the rig logs "
+        "it (time, the drive's input column, every sensor's channel).",
     )
     parser.add_argument("--input", required=True, choices=INPUT_NAMES, help="torque input shape")
-    parser.add_argument("--amplitude", type=float, help="N m (default: the input's own)")
+    parser.add_argument("--amplitude", type=float,
+                        help="N m, or the drive's unit with --arm (default: the input's own "
+                             "torque, through the drive's gain)")
     parser.add_argument(
         "--set",
         action="append",
@@ -44,16 +52,22 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     parser.add_argument(
         "--effects", default="", help="comma-separated physical effects to add (e.g. payload)"
     )
-    parser.add_argument("--duration", type=positive_float, default=2.0,
-                        help="seconds (default 2.0)")
-    parser.add_argument("--dt", type=positive_float, default=1e-3,
-                        help="sample step, s (default 1e-3)")
-    parser.add_argument("--noise", action="store_true", help="add the testbed's sensor noise")
+    parser.add_argument("--duration", type=positive_float,
+                        help="seconds (default 2.0, or the arm's sampling.duration)")
+    parser.add_argument("--dt", type=positive_float,
+                        help="sample step, s (default 1e-3, or the arm's sampling.dt)")
+    parser.add_argument("--noise", action="store_true",
+                        help="add the testbed's sensor noise (with --arm: each sensor's noise "
+                             "and quantisation)")
     parser.add_argument("--seed", type=seed, default=0, help="noise seed (default 0)")
     add_max_samples(parser)
     parser.add_argument("--out", required=True, help="record CSV (or .npz) to write")
     parser.add_argument("--plot", help="figure of joint angle and tip acceleration (PNG/PDF)")
     parser.add_argument("--overwrite", action="store_true", help="replace existing files")
+    add_arm_arguments(parser, window=False)
+    parser.add_argument("--rest", type=float, default=0.0, metavar="S",
+                        help="with --arm: seconds at rest before the input, as a rig's log "
+                             "starts (default 0)")
     parser.set_defaults(func=run)
 
 
@@ -109,13 +123,22 @@ def run(args: argparse.Namespace) -> int:
     from jaxflex.data import save_record
     from jaxflex.signals import reference_input
     from jaxflex.synthetic import add_measurement_noise, simulated_record
+    from jaxflex.testbed import Testbed
 
+    found = arm_of(args)
+    if found is None and args.rest:
+        raise UsageError("--rest needs --arm (records as a rig logs them)")
+    sampling = Testbed() if found is None else found[0].testbed
+    args.dt = sampling.dt if args.dt is None else args.dt
+    args.duration = sampling.duration if args.duration is None else args.duration
     if args.duration < 2 * args.dt:
         raise UsageError(f"--duration {args.duration} s is shorter than two samples of {args.dt} s")
     out, *plot = check_outputs(
         [("--out", args.out, RECORD_SUFFIXES), ("--plot", args.plot, FIGURE_SUFFIXES)],
-        overwrite=args.overwrite,
+        overwrite=args.overwrite, inputs=(found or ())[1:],
     )
+    if found is not None:
+        return simulate_arm(args, found[0], out)
     assignments = parse_assignments(args.set)
     n_elements = assignments.get("n_elements", 10)
     check_size(args.duration / args.dt + 1, f"--duration {args.duration:g} s at --dt {args.dt:g} s",
@@ -149,4 +172,63 @@ def run(args: argparse.Namespace) -> int:
     )
     for path in plot:
         print(f"wrote {path}")
+    return 0
+
+
+def simulate_arm(args: argparse.Namespace, arm, out) -> int:
+    """``simulate --arm``: the arm's model under its drive, written as the rig would log it
+    (the drive's input column and every sensor's channel)."""
+    from jaxflex._io import all_or_nothing
+    from jaxflex.cli._options import model_from
+    from jaxflex.data import save_record
+    from jaxflex.measured import logged_record
+    from jaxflex.signals import EXCITATION_AMPLITUDES, REFERENCE_AMPLITUDES, reference_input
+    from jaxflex.testbed import TESTBED_SETTINGS
+
+    if args.plot is not None:
+        raise UsageError("--plot is not available with --arm")
+    if not (math.isfinite(args.rest) and args.rest >= 0):
+        raise UsageError(f"--rest {args.rest!r}: must be a finite number of seconds >= 0")
+    assignments = parse_assignments(args.set)
+    settings = sorted(set(assignments) & set(TESTBED_SETTINGS))
+    if settings:
+        raise UsageError(f"--set {settings[0]}: with --arm the arm file sets the link; edit it")
+    n_rest = int(round(args.rest / args.dt))
+    check_size(n_rest + args.duration / args.dt + 1,
+               f"--rest {args.rest:g} s and --duration {args.duration:g} s at --dt {args.dt:g} s",
+               n_elements=arm.testbed.n_elements, limit=max_samples(args.max_samples))
+    effects = model_from([e.strip() for e in args.effects.split(",") if e.strip()],
+                         "--effects").effects
+    space = arm.model(*effects).space
+    unknown = sorted(set(assignments) - set(space.names))
+    if unknown:
+        raise UsageError(f"--set: unknown name(s) {unknown}; known names: {list(space.names)}")
+    params = space.reference() | assignments
+    try:
+        space.validate(params)
+    except ValueError as err:
+        raise UsageError(f"--set: {err}") from None
+    amplitude = args.amplitude
+    if amplitude is None:  # the input's own torque, in the drive's unit
+        amplitude = (REFERENCE_AMPLITUDES | EXCITATION_AMPLITUDES)[args.input] / arm.drive.gain
+    _, signal = reference_input(args.input, amplitude, args.duration, args.dt)
+    signal = np.concatenate([np.zeros(n_rest), signal])
+    time = np.arange(signal.size) * args.dt
+    metadata = {
+        "generator": "jaxflex simulate --arm",
+        "arm file": str(arm.source),
+        "input": f"{args.input}, {arm.drive.name} ({arm.drive.unit}), after "
+                 f"{n_rest * args.dt:g} s at rest",
+        "parameters": ", ".join(f"{k}={float(v)!r}" for k, v in params.items()),
+        "effects": ", ".join(e.name for e in effects) or "none",
+        "noise": f"each sensor's noise and quantisation, seed {args.seed}" if args.noise
+        else "none",
+    }
+    record = logged_record(arm, params, time, signal, effects=effects,
+                           seed=args.seed if args.noise else None, name=args.input,
+                           metadata=metadata)
+    with all_or_nothing():
+        save_record(record, out, overwrite=args.overwrite)
+    print(f"wrote {out}: {record.n_samples} samples of {', '.join(record.columns[1:])} "
+          f"(arm {arm.name!r})")
     return 0

@@ -9,7 +9,16 @@ from __future__ import annotations
 
 import argparse
 
-from jaxflex.cli import UsageError, load_records
+from jaxflex.cli import UsageError
+from jaxflex.cli._arm import (
+    add_arm_arguments,
+    arm_fit_keywords,
+    arm_of,
+    arm_settings,
+    load_rig_records,
+    model_records,
+    parse_window,
+)
 from jaxflex.cli._checks import FIGURE_SUFFIXES, JSON_SUFFIXES, MAX_SEED, check_outputs
 from jaxflex.cli._options import fit_keywords, model_from
 from jaxflex.cli.identify import add_search_arguments, check_finite_cost, sources
@@ -28,6 +37,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                    help="seeds as a range and/or list, e.g. 0-9 or 0,3,7 (default: %(default)s)")
     p.add_argument("--out", required=True, metavar="STUDY.json", help="where to write the runs")
     p.add_argument("--plot", metavar="FIG.png", help="also write the convergence curves")
+    add_arm_arguments(p)
     p.set_defaults(func=run)
 
 
@@ -67,23 +77,33 @@ def parse_methods(text: str) -> list[str]:
 
 
 def run(args: argparse.Namespace) -> int:
+    import dataclasses
+
+    from jaxflex import identify
     from jaxflex._io import all_or_nothing
-    from jaxflex.identification import identify
     from jaxflex.study import run_study
 
     methods = parse_methods(args.methods)
     seeds = parse_seeds(args.seeds)
-    records = load_records(args.data, resample=args.resample, unit_check=args.unit_check)
+    found = arm_of(args)
+    window = parse_window(args.window)
+    records = load_rig_records(args.data, args)
     out, *plot = check_outputs(
         [("--out", args.out, JSON_SUFFIXES), ("--plot", args.plot, FIGURE_SUFFIXES)],
-        overwrite=args.overwrite, inputs=sources(records),
+        overwrite=args.overwrite, inputs=[*sources(records), *(found or ())[1:]],
     )
-    keywords = fit_keywords(args, identify)
+    model = model_from(args.effect)
+    if found is None:
+        keywords = fit_keywords(args, identify)
+    else:
+        arm, _ = found
+        keywords = arm_fit_keywords(args, identify, arm, records[0])
+        records, model = model_records(arm, records, window), arm.model(*model.effects)
     study = run_study(
         records,
         methods,
         seeds,
-        model=model_from(args.effect),
+        model=model,
         generations=args.generations,
         population=args.population,
         refine=args.refine,
@@ -92,6 +112,8 @@ def run(args: argparse.Namespace) -> int:
     )
     for r in study.runs:
         check_finite_cost(r.cost, "bounds" in keywords)
+    if found is not None:
+        study = dataclasses.replace(study, settings=study.settings | arm_settings(found[1], window))
     print(study.table(), end="")
     with all_or_nothing():
         study.to_json(out, overwrite=args.overwrite)

@@ -9,8 +9,8 @@ from __future__ import annotations
 
 import argparse
 
-from jaxflex.cli import UsageError, load_records
-from jaxflex.cli._arm import add_window_argument, validate_with_arm, with_arm
+from jaxflex.cli import UsageError
+from jaxflex.cli._arm import add_window_argument, load_rig_records, validate_with_arm, with_arm
 from jaxflex.cli._checks import (
     add_max_samples,
     check_directory,
@@ -93,7 +93,7 @@ def run(args: argparse.Namespace) -> int:
         return validate_with_arm(args, fit, model)
     if args.window is not None or args.json is not None:
         raise UsageError("--window and --json need a fit made with `jaxflex identify --arm`")
-    records = load_records(args.data, resample=args.resample, unit_check=args.unit_check)
+    records = load_rig_records(args.data, args)
     check_size(sum(r.n_samples for r in records), f"{len(records)} record(s)",
                n_elements=model.testbed.n_elements, limit=max_samples(args.max_samples))
     nyquist = 0.5 / records.dt

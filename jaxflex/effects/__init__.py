@@ -17,6 +17,7 @@ from jaxflex.effects.gravity import Gravity
 from jaxflex.effects.motor_lag import MotorLag
 from jaxflex.effects.payload import Payload
 from jaxflex.effects.root_compliance import RootCompliance
+from jaxflex.effects.sensor_gain import StrainGaugeGain
 from jaxflex.effects.stribeck import Stribeck
 from jaxflex.effects.torque_offset import TorqueOffset
 
@@ -63,6 +64,7 @@ __all__ = [
     "MotorLag",
     "Payload",
     "RootCompliance",
+    "StrainGaugeGain",
     "Stribeck",
     "Structure",
     "TorqueOffset",
