@@ -142,13 +142,14 @@ def _bracketed_newton(residual, lo: Array, hi: Array, guess: Array) -> tuple[Arr
     ``residual(v)`` returns ``(r, slope, scale)``, ``scale`` being the size of the terms that
     make up ``r`` (its round-off is a few ulps of it). Newton steps that leave the bracket fall
     back to bisection, so every iteration shrinks it; the loop stops when the residual is at
-    round-off, the Newton step is below an ulp of ``v`` or the bracket has collapsed, and after
+    round-off, the Newton step is below an ulp of ``v``, the bracket has collapsed or an
+    iteration left ``v`` unchanged, and after
     :data:`MAX_FRICTION_ITERATIONS` at the latest. Returns the root and the iterations taken.
     """
     eps = jnp.finfo(jnp.result_type(guess)).eps
 
     def step(carry):
-        v, lo, hi, converged, count = carry
+        v, _, lo, hi, converged, count = carry
         # one value of each quantity for every use below (XLA could otherwise recompute the
         # residual in several fused kernels that round differently and never agree)
         r, slope, scale = jax.lax.optimization_barrier(residual(v))
@@ -163,13 +164,17 @@ def _bracketed_newton(residual, lo: Array, hi: Array, guess: Array) -> tuple[Arr
             | (jnp.abs(new - v) <= eps * jnp.abs(v))
             | (hi - lo <= eps * jnp.maximum(jnp.abs(lo), jnp.abs(hi)))
         )
-        return jnp.where(done, v, new), lo, hi, done, count + 1
+        return jnp.where(done, v, new), v, lo, hi, done, count + 1
 
     def running(carry):
-        return ~carry[3] & (carry[4] < MAX_FRICTION_ITERATIONS)
+        v, previous, _, _, done, count = carry
+        # an iteration that leaves v unchanged has nothing left to do, whatever the test said
+        return ~done & (v != previous) & (count < MAX_FRICTION_ITERATIONS)
 
-    start = (jnp.clip(guess, lo, hi), lo, hi, jnp.zeros_like(guess, dtype=bool), jnp.zeros((), int))
-    v, _, _, _, count = jax.lax.while_loop(running, step, start)
+    v0 = jnp.clip(guess, lo, hi)
+    unset = jnp.full_like(v0, jnp.nan)
+    start = (v0, unset, lo, hi, jnp.zeros_like(v0, dtype=bool), jnp.zeros((), int))
+    v, _, _, _, _, count = jax.lax.while_loop(running, step, start)
     return v, count
 
 
