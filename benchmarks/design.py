@@ -58,7 +58,7 @@ from jaxflex.objective import build_objective  # noqa: E402
 from jaxflex.refine import dense_jacobian  # noqa: E402
 from jaxflex.rigid import estimate_rigid, warm_start  # noqa: E402
 from jaxflex.signals import time_grid  # noqa: E402
-from jaxflex.simulate import simulate, simulate_core  # noqa: E402
+from jaxflex.simulation import simulate, simulate_core  # noqa: E402
 from jaxflex.synthetic import ENCODER_STEP, add_measurement_noise, make_records, quantise_angle  # noqa: E402
 
 LIMITS = dict(max_torque=0.5, rms_torque=0.1, max_angle=1.5, max_speed=5.0)

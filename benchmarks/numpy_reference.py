@@ -1,6 +1,6 @@
 """The NumPy alternative a user would write: one candidate, one record at a time.
 
-Same model as :mod:`jaxflex.simulate` (hub + Hermite FEM beam from
+Same model as :mod:`jaxflex.simulation` (hub + Hermite FEM beam from
 :class:`jaxflex.fem.BeamPatterns`, Rayleigh damping on the elastic coordinates, smooth Coulomb +
 viscous joint friction) and the same scheme, so the same accuracy at the same step:
 

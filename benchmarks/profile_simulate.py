@@ -29,7 +29,7 @@ from jaxflex.model import Model  # noqa: E402
 from jaxflex.signals import reference_input  # noqa: E402
 from jaxflex.testbed import Testbed  # noqa: E402
 
-simulator = sys.modules["jaxflex.simulate"]
+simulator = sys.modules["jaxflex.simulation"]
 RESULTS = Path(__file__).parent / "results" / "profile_simulate.json"
 
 

@@ -28,7 +28,7 @@ import jaxflex  # noqa: E402
 from jaxflex._io import provenance, write_json  # noqa: E402
 from jaxflex.model import Model  # noqa: E402
 from jaxflex.signals import reference_input  # noqa: E402
-from jaxflex.simulate import simulate_batch, simulate_core  # noqa: E402
+from jaxflex.simulation import simulate_batch, simulate_core  # noqa: E402
 
 RESULTS = Path(__file__).parent / "results" / "simulate.json"
 

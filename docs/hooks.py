@@ -108,7 +108,7 @@ def _public_members(module: griffe.Module) -> list[griffe.Object | griffe.Alias]
     module has one, else the public names it defines (not its imports, not submodules).
 
     A name of ``__all__`` that griffe sees as a submodule is the function the package
-    re-exports under its module's name (``jaxflex.simulate`` → ``jaxflex.simulate.simulate``).
+    re-exports under its module's name (``jaxflex.simulation`` → ``jaxflex.simulation.simulate``).
     """
     exports = _export_names(module)
     members = []

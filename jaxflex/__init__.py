@@ -38,7 +38,7 @@ from jaxflex.discovery import (  # noqa: E402
 )
 from jaxflex.drives import DRIVES, CurrentDrive, Drive, TorqueDrive, VoltageDrive  # noqa: E402
 from jaxflex.effects import EFFECTS, Effect, get_effect, library  # noqa: E402
-from jaxflex.frf import frf, mode_shapes, natural_frequencies  # noqa: E402
+from jaxflex.frequency_response import frf, mode_shapes, natural_frequencies  # noqa: E402
 from jaxflex.identification import Fit, identify, load_fit  # noqa: E402
 from jaxflex.model import Model  # noqa: E402
 from jaxflex.parameters import (  # noqa: E402
@@ -50,7 +50,7 @@ from jaxflex.parameters import (  # noqa: E402
 )
 from jaxflex.rigid import RigidEstimate, estimate_rigid, warm_start  # noqa: E402
 from jaxflex.signals import reference_input  # noqa: E402
-from jaxflex.simulate import Outputs, simulate, simulate_batch  # noqa: E402
+from jaxflex.simulation import Outputs, simulate, simulate_batch  # noqa: E402
 from jaxflex.synthetic import make_records  # noqa: E402
 from jaxflex.testbed import Testbed  # noqa: E402
 

@@ -1,7 +1,7 @@
 """Compare the model with measured records: the paper's validation metrics, FRFs and a table.
 
 Each record's measured torque drives the model (from rest, zero-order hold, see
-:func:`jaxflex.simulate.simulate`) and the simulated outputs are set against the measured ones:
+:func:`jaxflex.simulation.simulate`) and the simulated outputs are set against the measured ones:
 
 * **time domain** — per output, the NRMSE ``100·rms(y − ŷ)/rms(y)`` (%) and the held-out
   relative error ``‖y − ŷ‖/‖y‖`` (a fraction, as the dVRK identification package reports it),
@@ -37,7 +37,7 @@ from jaxflex.data import OUTPUT_COLUMNS, Dataset, Record
 from jaxflex.metrics import frf_nrmse, h1_frf, nrmse, relative_error, spectral_window
 from jaxflex.modal import free_hub_modes
 from jaxflex.model import Model
-from jaxflex.simulate import Outputs, simulate
+from jaxflex.simulation import Outputs, simulate
 
 ROLES = ("fit", "held-out")
 """A record was used to fit the parameters, or held out to validate them."""

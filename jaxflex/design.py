@@ -51,7 +51,7 @@ from jaxflex.data import Record
 from jaxflex.model import Model
 from jaxflex.parameters import Params
 from jaxflex.signals import REFERENCE_AMPLITUDES, reference_input, time_grid
-from jaxflex.simulate import OUTPUT_NAMES, Outputs, check_torque, simulate, simulate_core
+from jaxflex.simulation import OUTPUT_NAMES, Outputs, check_torque, simulate, simulate_core
 from jaxflex.synthetic import ACCELEROMETER_SIGMA, ENCODER_STEP
 
 DEFAULT_NOISE: dict[str, float] = {

@@ -23,7 +23,7 @@ from jaxflex.data import Record
 from jaxflex.effects import Effect
 from jaxflex.metrics import nrmse
 from jaxflex.sensors import readings
-from jaxflex.simulate import simulate
+from jaxflex.simulation import simulate
 
 REST_SPAN = 0.05
 """Seconds of stillness that count as rest at a window's start."""

@@ -21,7 +21,7 @@ from jaxflex.testbed import Testbed
 class Model(eqx.Module):
     """A flexible-link arm: the reference testbed plus any number of physical effects.
 
-    ``n_substeps`` integrator steps are taken per sample interval; see :mod:`jaxflex.simulate`.
+    ``n_substeps`` integrator steps are taken per sample interval; see :mod:`jaxflex.simulation`.
     ``base`` holds the specs (bounds, reference values) of the six base parameters, ``drive``
     turns the logged input into hub torque (:mod:`jaxflex.drives`); a :class:`~jaxflex.arm.Arm`
     sets both for a real rig.

@@ -38,7 +38,7 @@ from jaxflex.evolve._base import sanitize_fitness
 from jaxflex.model import Model
 from jaxflex.parallel import population_vmap
 from jaxflex.parameters import ParameterSpace, ParameterSpec, Params
-from jaxflex.simulate import OUTPUT_NAMES, simulate_core
+from jaxflex.simulation import OUTPUT_NAMES, simulate_core
 
 DEFAULT_CHANNELS: tuple[str, ...] = ("joint_angle", "tip_acceleration")
 

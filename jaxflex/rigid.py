@@ -46,7 +46,7 @@ from jaxtyping import Array, ArrayLike, Float
 from jaxflex.data import Dataset, Record
 from jaxflex.parameters import ParameterSpace
 from jaxflex.preprocess import differentiate, lowpass
-from jaxflex.simulate import Outputs, check_dt, check_torque
+from jaxflex.simulation import Outputs, check_dt, check_torque
 from jaxflex.testbed import Testbed
 
 DEFAULT_CUTOFF_HZ = 4.0
@@ -353,7 +353,7 @@ def rigid_simulate(
     Zero-order-hold torque; each substep is backward Euler in the friction with the set-valued
     Coulomb law, solved in closed form: the joint sticks when ``|v + h(tau − c)/J| ≤ h·tau_c/J``
     and otherwise ``v⁺ = (v + h(tau − c − tau_c·s)/J) / (1 + h b_v/J)``. The angle advances by
-    the trapezoidal rule. Outputs are those of :class:`jaxflex.simulate.Outputs` at the sample
+    the trapezoidal rule. Outputs are those of :class:`jaxflex.simulation.Outputs` at the sample
     instants (right-hand limit of the torque): the tip acceleration of a rigid link is ``L·θ''``
     (``length`` defaults to the reference testbed's); deflection and strain are zero.
     """

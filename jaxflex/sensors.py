@@ -27,7 +27,7 @@ import numpy as np
 from jaxtyping import Array, Float
 
 from jaxflex.model import Model
-from jaxflex.simulate import Outputs
+from jaxflex.simulation import Outputs
 
 
 class Sensor(eqx.Module):
@@ -86,7 +86,7 @@ class Sensor(eqx.Module):
 
     def simulated_output(self, model: Model) -> tuple[str, float] | None:
         """``(output, factor)`` when the reading is ``gain·factor·output + offset`` for one of
-        the simulator's standard outputs (:data:`~jaxflex.simulate.OUTPUT_NAMES`), else None."""
+        the simulator's standard outputs (:data:`~jaxflex.simulation.OUTPUT_NAMES`), else None."""
         return None
 
     def _station(self, model: Model) -> int:

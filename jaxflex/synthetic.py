@@ -23,7 +23,7 @@ from jaxflex.data import Dataset, Record
 from jaxflex.model import Model
 from jaxflex.parameters import Params
 from jaxflex.signals import reference_input
-from jaxflex.simulate import OUTPUT_NAMES, simulate
+from jaxflex.simulation import OUTPUT_NAMES, simulate
 
 ENCODER_COUNTS = 4096
 """Encoder counts per revolution."""

@@ -1,6 +1,6 @@
 """An independent reference for the simulator: SciPy Radau on the full FEM equations of motion.
 
-Nothing here uses the modal basis or the stepping scheme of ``jaxflex.simulate``: it integrates
+Nothing here uses the modal basis or the stepping scheme of ``jaxflex.simulation``: it integrates
 ``M q'' + D q' + K q = e_θ(τ − τ_f(θ'))`` in physical coordinates, restarting wherever the
 torque sample changes so the zero-order hold is exact, with tight tolerances and the analytic
 Jacobian.

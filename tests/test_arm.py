@@ -10,7 +10,7 @@ from jaxflex.arm import Arm, ArmError, arm_from_dict, load_arm
 from jaxflex.drives import VoltageDrive
 from jaxflex.sensors import with_stations
 from jaxflex.signals import reference_input
-from jaxflex.simulate import OUTPUT_NAMES
+from jaxflex.simulation import OUTPUT_NAMES
 
 ARMS = Path(__file__).parent.parent / "arms"
 REFERENCE = ARMS / "reference.toml"

@@ -8,7 +8,7 @@ from jaxflex.data import load_record
 from jaxflex.effects import get_effect
 from jaxflex.model import Model
 from jaxflex.signals import reference_input
-from jaxflex.simulate import simulate
+from jaxflex.simulation import simulate
 
 
 def test_writes_the_simulated_record_and_refuses_to_overwrite(tmp_path, capsys):

@@ -22,7 +22,7 @@ from jaxflex.design import (
 from jaxflex.model import Model
 from jaxflex.parameters import reference_parameters
 from jaxflex.signals import reference_input
-from jaxflex.simulate import simulate
+from jaxflex.simulation import simulate
 
 # A fast design: 8 harmonics (up to 4 Hz) and a few steps; the full one is in benchmarks/design.py
 FAST = dict(harmonics=8, iterations=4, max_torque=0.5, rms_torque=0.1)

@@ -31,7 +31,7 @@ from jaxflex.diagnosis import (
 from jaxflex.modal import free_hub_modes
 from jaxflex.model import Model
 from jaxflex.parameters import reference_parameters
-from jaxflex.simulate import simulate
+from jaxflex.simulation import simulate
 from jaxflex.synthetic import ENCODER_STEP, make_records
 
 DT = 1e-3

@@ -38,7 +38,7 @@ from jaxflex.effects import Effect, Stribeck, get_effect
 from jaxflex.metrics import nrmse
 from jaxflex.model import Model
 from jaxflex.parameters import ParameterSpec
-from jaxflex.simulate import simulate
+from jaxflex.simulation import simulate
 from jaxflex.synthetic import ACCELEROMETER_SIGMA, ENCODER_STEP, make_records
 
 #: Base parameters of the "real" arm: every one away from the paper's value.

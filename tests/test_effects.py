@@ -31,7 +31,7 @@ from jaxflex.modal import free_hub_modes
 from jaxflex.model import Model
 from jaxflex.parameters import ParameterSpec, reference_parameters
 from jaxflex.signals import reference_input
-from jaxflex.simulate import OUTPUT_NAMES, simulate, simulate_batch, simulate_core
+from jaxflex.simulation import OUTPUT_NAMES, simulate, simulate_batch, simulate_core
 
 NAMES = (
     "delay",

@@ -30,7 +30,7 @@ from jaxflex.effects import get_effect
 from jaxflex.metrics import nrmse
 from jaxflex.model import Model
 from jaxflex.signals import reference_input
-from jaxflex.simulate import simulate
+from jaxflex.simulation import simulate
 from jaxflex.synthetic import ACCELEROMETER_SIGMA
 
 INPUTS = ("triangular", "pulse", "half_sine")

@@ -10,7 +10,7 @@ from jaxflex.data import Record, RecordError
 from jaxflex.metrics import nrmse
 from jaxflex.model import Model
 from jaxflex.objective import build_objective
-from jaxflex.simulate import simulate
+from jaxflex.simulation import simulate
 from jaxflex.synthetic import make_records
 
 DURATION = 0.6  # short records keep these tests fast; the arm is still moving at 0.6 s

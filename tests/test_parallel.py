@@ -21,7 +21,7 @@ SPLIT_CHECKS = textwrap.dedent(
     from jaxflex.objective import build_objective
     from jaxflex.parallel import population_vmap
     from jaxflex.signals import reference_input
-    from jaxflex.simulate import simulate_core
+    from jaxflex.simulation import simulate_core
 
     assert len(jax.devices()) == 3, jax.devices()
     # a population of 49 is padded to 51 and split three ways: the plain vmap's outputs

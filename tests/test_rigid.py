@@ -19,7 +19,7 @@ from jaxflex.rigid import (
     rigid_simulate,
     warm_start,
 )
-from jaxflex.simulate import simulate
+from jaxflex.simulation import simulate
 from jaxflex.synthetic import add_measurement_noise, make_records
 
 LINK = testbed.Testbed().link_inertia

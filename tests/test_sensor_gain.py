@@ -8,7 +8,7 @@ from test_arm import ARMS
 from jaxflex.arm import load_arm
 from jaxflex.effects import StrainGaugeGain, get_effect
 from jaxflex.measured import logged_record, model_record
-from jaxflex.simulate import OUTPUT_NAMES, simulate
+from jaxflex.simulation import OUTPUT_NAMES, simulate
 
 ROTFLEX = load_arm(ARMS / "quanser_rotflex.toml")
 PARAMS = {**ROTFLEX.reference_parameters()}

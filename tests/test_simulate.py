@@ -12,10 +12,10 @@ from reference_solver import radau_reference
 from scipy.optimize import brentq
 
 import jaxflex
-from jaxflex.frf import frf, natural_frequencies
+from jaxflex.frequency_response import frf, natural_frequencies
 from jaxflex.model import Model
 from jaxflex.signals import reference_input
-from jaxflex.simulate import simulate, simulate_batch, simulate_core
+from jaxflex.simulation import simulate, simulate_batch, simulate_core
 from jaxflex.testbed import Testbed
 
 Testbed.__test__ = False  # not a test class
@@ -229,7 +229,7 @@ def test_friction_solve_converges_to_round_off(target, guess_share):
     """Stuck (|v| ≪ ω_s) to sliding: the root equals SciPy's brentq at full precision, from any
     start in the bracket, alone and vmapped, with the implicit-function derivative."""
     gain = 0.05
-    simulator = sys.modules["jaxflex.simulate"]
+    simulator = sys.modules["jaxflex.simulation"]
 
     def solve(target, guess):
         return simulator._joint_velocity_solve(_base_friction, target, gain, guess)
@@ -250,7 +250,7 @@ def test_friction_solve_converges_to_round_off(target, guess_share):
 
 def test_friction_solve_stops_well_before_its_limit():
     """Few iterations from a start near the root; never the safety limit from a poor one."""
-    simulator = sys.modules["jaxflex.simulate"]
+    simulator = sys.modules["jaxflex.simulation"]
     gain = 0.05
 
     def with_slope(target):

@@ -7,7 +7,7 @@ import jaxflex  # noqa: F401  (float64)
 from jaxflex.data import Dataset
 from jaxflex.model import Model
 from jaxflex.signals import reference_input
-from jaxflex.simulate import simulate
+from jaxflex.simulation import simulate
 from jaxflex.synthetic import (
     ACCELEROMETER_SIGMA,
     ENCODER_STEP,

@@ -276,7 +276,7 @@ def diagnose(
 ) -> Diagnosis:
     """Run every diagnostic on the residuals of ``predictions`` (one per record).
 
-    A prediction is an :class:`~jaxflex.simulate.Outputs`, a :class:`Record` or a mapping with
+    A prediction is an :class:`~jaxflex.simulation.Outputs`, a :class:`Record` or a mapping with
     ``joint_angle`` and ``tip_acceleration`` (``joint_velocity`` is used for localisation when
     present). ``noise`` gives channels' levels (a :class:`NoiseLevel` or a white σ); the others
     are estimated by :func:`estimate_noise`. ``alpha`` is the level of the whiteness test.

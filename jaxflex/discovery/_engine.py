@@ -29,7 +29,7 @@ from jaxflex.model import Model
 from jaxflex.objective import build_objective
 from jaxflex.parameters import ParameterSpace
 from jaxflex.refine import bounded_levenberg_marquardt
-from jaxflex.simulate import Outputs, simulate
+from jaxflex.simulation import Outputs, simulate
 
 INNER_WEIGHT = 1e-2
 

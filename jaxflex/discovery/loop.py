@@ -32,7 +32,7 @@ from jaxflex.discovery.scores import ALPHA, ScoreResult
 from jaxflex.effects import Effect
 from jaxflex.model import Model
 from jaxflex.objective import as_dataset
-from jaxflex.simulate import Outputs
+from jaxflex.simulation import Outputs
 
 MIN_EXPLAINED = 0.9
 

@@ -15,7 +15,7 @@ from jaxflex.diagnosis import (
 from jaxflex.diagnosis.noise import UNITS
 from jaxflex.discovery.scores import ScoreResult
 from jaxflex.model import Model
-from jaxflex.simulate import Outputs
+from jaxflex.simulation import Outputs
 
 
 @dataclass(frozen=True)

@@ -23,7 +23,7 @@ from jaxflex._io import check_writable, safe_stem, write_json, write_text
 from jaxflex.comparison import FRF, Comparison
 from jaxflex.data import OUTPUT_COLUMNS, Record
 from jaxflex.plots._style import MARK, MEASURED, MODEL, RESIDUAL, new_figure, save_figure
-from jaxflex.simulate import Outputs
+from jaxflex.simulation import Outputs
 
 TIME_FIGSIZE = (8.0, 6.5)
 FRF_FIGSIZE = (8.0, 6.0)

@@ -185,7 +185,7 @@ def plot_overlay(
 ) -> Figure:
     """Measured outputs of ``record`` against the model before and after, residuals below.
 
-    ``before`` and ``after`` are simulated outputs (:class:`~jaxflex.simulate.Outputs` or a
+    ``before`` and ``after`` are simulated outputs (:class:`~jaxflex.simulation.Outputs` or a
     mapping channel → array).
     """
 
