@@ -428,5 +428,6 @@ def test_a_rigid_estimate_beyond_a_bound_seeds_the_search_on_it():
     the bound itself (it ended one ulp past it, and identify refused the seed)."""
     records = make_records(inputs=("pulse", "half_sine"), duration=1.0)
     above = dataclasses.replace(_rigid(records), b_v=0.5, active=())
-    params = _initial_params(records, Model(), None, (2, 8), 0, False, above)
+    params = _initial_params(records, Model(), None, (2, 8), 0, False, above,
+                             {"bounds": None, "fixed": None, "weights": None, "noise": None})
     assert 1e-5 <= params["b_v"] <= 0.3
