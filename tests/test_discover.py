@@ -348,16 +348,14 @@ def test_discover_holds_fixed_parameters_and_respects_bounds(payload_case):
     assert "beta" not in settings["bounds"]
 
 
-@pytest.mark.slow
 def test_discover_holds_effect_bounds_when_the_effect_is_added(payload_case):
     records, _, _ = payload_case
-    report = discover(records, initial=START, fixed=HELD, bounds={"J_h": BOX,
-                      "m_p": (0.035, 0.06)}, max_steps=1, candidates=["payload"])
-    assert report.added == ("payload",)
+    report = discover(records, initial=START, fixed=HELD, bounds={"m_p": (0.01, 0.028)},
+                      max_steps=1, candidates=["payload"])
+    assert report.added == ("payload",), report.table()
     for step in report.steps[1:]:
         assert step.fit.params["beta"] == HELD["beta"]
-        assert BOX[0] <= step.fit.params["J_h"] <= BOX[1]
-    assert report.final.fit.params["m_p"] == pytest.approx(0.035)  # the truth, 0.03, lies below
+    assert report.final.fit.params["m_p"] == pytest.approx(0.028)  # the truth, 0.03, lies above
 
 
 @pytest.mark.parametrize(("keyword", "value", "message"), [
