@@ -16,7 +16,7 @@ from jaxtyping import Array, ArrayLike, Float
 from jaxflex.discovery.candidates import Candidate, Variant
 from jaxflex.effects import Effect
 from jaxflex.model import Model
-from jaxflex.objective import Objective, _free_specs
+from jaxflex.objective import Objective, free_specs
 from jaxflex.parameters import ParameterSpace
 
 
@@ -63,7 +63,7 @@ class Universe:
         own = {s.name: s for s in base.space.specs}
         for slot in slots:
             own.update({p.name: p for p in slot.effect.parameters if p.name not in own})
-        _free_specs(ParameterSpace(own.values()), bounds, fixed)  # names, pairs, values
+        free_specs(ParameterSpace(own.values()), bounds, fixed)  # names, pairs, values
         held = sorted(set(fixed or {}) - set(base.space.names))
         if held:
             raise ValueError(f"fixed names effect parameter(s) {held}; discover holds only "
@@ -72,7 +72,7 @@ class Universe:
         given = dict(bounds or {})
         bounds = {n: tuple(map(float, given[owner.get(n, n)])) for n in model.space.names
                   if owner.get(n, n) in given}
-        specs, values = _free_specs(model.space, bounds, fixed)
+        specs, values = free_specs(model.space, bounds, fixed)
         space = ParameterSpace(specs)
         null = np.array([0.0 if s.null is None else s.null for s in space.specs])
         log = np.array([s.log_scale for s in space.specs])

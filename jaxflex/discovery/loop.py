@@ -32,7 +32,7 @@ from jaxflex.discovery.report import Confirmation, DiscoveryFit, DiscoveryReport
 from jaxflex.discovery.scores import ALPHA, ScoreResult
 from jaxflex.effects import Effect
 from jaxflex.model import Model
-from jaxflex.objective import _check_weights, as_dataset
+from jaxflex.objective import as_dataset, check_weights
 from jaxflex.simulate import Outputs
 
 MIN_EXPLAINED = 0.9
@@ -215,7 +215,7 @@ def discover(
     cands = tuple(c for c in candidate_set(candidates) if c.name not in model.effect_names)
     fit_options = {"bounds": bounds, "fixed": fixed, "weights": weights, "noise": noise}
     Engine.make_universe(model, cands, bounds, fixed)  # bad names or values: fail before any fit
-    _check_weights(weights, CHANNELS)
+    check_weights(weights, CHANNELS)
     rigid = _rigid(records)
     start = _initial_params(records, model, initial, budget, seed, progress, rigid, fit_options)
     engine = Engine.build(model, cands, records, start, noise, bounds=bounds, fixed=fixed,
