@@ -166,7 +166,8 @@ class Objective(eqx.Module):
         return np.concatenate(records), np.concatenate(channels), np.concatenate(scales)
 
 
-def _check_weights(weights: Mapping[str, float] | None, channels: Sequence[str]) -> tuple:
+def check_weights(weights: Mapping[str, float] | None, channels: Sequence[str]) -> tuple:
+    """The weight of each of ``channels`` (default 1), validated: one line naming the channel."""
     weights = {} if weights is None else dict(weights)
     unknown = sorted(set(weights) - set(channels))
     if unknown:
@@ -202,11 +203,13 @@ def noise_weights(records: Records, noise: Noise,
             / levels[c].sigma**2 for c in channels}
 
 
-def _free_specs(
+def free_specs(
     space: ParameterSpace,
     bounds: Mapping[str, tuple[float, float]] | None,
     fixed: Mapping[str, ArrayLike] | None,
 ) -> tuple[tuple[ParameterSpec, ...], dict[str, Array]]:
+    """The free parameters of ``space`` (``bounds`` applied) and the ``fixed`` values, both
+    validated with one-line errors naming the parameter (identify's and discover's check)."""
     fixed = dict(fixed or {})
     bounds = dict(bounds or {})
     for label, given in (("fixed", fixed), ("bounds", bounds)):
@@ -275,12 +278,12 @@ def build_objective(
         if weights is not None:
             raise ValueError("give channel weights or noise levels, not both")
         weights = noise_weights(dataset, noise, channels)
-    weight_values = _check_weights(weights, channels)
+    weight_values = check_weights(weights, channels)
     # a channel of weight 0 adds nothing: leave it out of the simulation and the residuals
     channels, weight_values = zip(
         *((c, w) for c, w in zip(channels, weight_values, strict=True) if w > 0), strict=True
     )
-    specs, fixed_values = _free_specs(model.space, bounds, fixed)
+    specs, fixed_values = free_specs(model.space, bounds, fixed)
     model.space.validate({**model.space.reference(), **fixed_values})
 
     n_records = len(dataset)
@@ -324,4 +327,5 @@ def build_objective(
     )
 
 
-__all__ = ["DEFAULT_CHANNELS", "Objective", "as_dataset", "build_objective", "noise_weights"]
+__all__ = ["DEFAULT_CHANNELS", "Objective", "as_dataset", "build_objective", "check_weights",
+           "free_specs", "noise_weights"]

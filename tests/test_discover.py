@@ -328,6 +328,105 @@ def test_cli_discover_writes_the_json_contract(payload_case, tmp_path, capsys):
     assert "fit file not found" in capsys.readouterr().err
 
 
+# --- identify's fitting options: bounds, fixed values, channel weights -------------------------
+
+
+HELD = {"beta": 9e-5}  # the truth, not START's value: a held parameter keeps the given one
+BOX = (0.004, 0.006)  # J_h: the truth and the start lie above, so the fit ends on the box
+
+
+def test_discover_holds_fixed_parameters_and_respects_bounds(payload_case):
+    records, _, _ = payload_case
+    report = discover(records, initial=START, fixed=HELD, bounds={"J_h": BOX}, max_steps=0)
+    assert len(report.steps) == 2 and report.steps[0].label == "rigid"
+    fit = report.final.fit
+    assert fit.params["beta"] == HELD["beta"] and fit.n_params == 5
+    assert BOX[0] <= fit.params["J_h"] <= BOX[1]
+    assert fit.params["J_h"] == pytest.approx(BOX[1], rel=1e-6)  # pressed against the box
+    settings = report.to_dict()["settings"]
+    assert settings["fixed"] == HELD and settings["bounds"]["J_h"] == list(BOX)
+    assert "beta" not in settings["bounds"]
+
+
+def test_discover_holds_effect_bounds_when_the_effect_is_added(payload_case):
+    records, _, _ = payload_case
+    report = discover(records, initial=START, fixed=HELD, bounds={"m_p": (0.01, 0.028)},
+                      max_steps=1, candidates=["payload"])
+    assert report.added == ("payload",), report.table()
+    for step in report.steps[1:]:
+        assert step.fit.params["beta"] == HELD["beta"]
+    assert report.final.fit.params["m_p"] == pytest.approx(0.028)  # the truth, 0.03, lies above
+
+
+@pytest.mark.parametrize(("keyword", "value", "message"), [
+    ("fixed", {"gamma": 1.0}, "fixed names unknown parameter(s) ['gamma']; known parameters: "),
+    ("bounds", {"m_q": (0.0, 1.0)}, "bounds names unknown parameter(s) ['m_q']; known "),
+    ("bounds", {"J_h": (0.01, 0.001)}, "bounds for J_h: lower bound 0.01 must be below upper "),
+    ("fixed", {"m_p": 0.01}, "fixed names effect parameter(s) ['m_p']; discover holds only "),
+    ("weights", {"torque": 1.0}, "weights given for channel(s) ['torque'] not fitted"),
+])
+def test_discover_refuses_bad_fitting_options_in_one_line(payload_case, keyword, value, message):
+    records, _, _ = payload_case
+    with pytest.raises(ValueError) as info:
+        discover(records, initial=START, max_steps=0, **{keyword: value})
+    assert str(info.value).startswith(message) and "\n" not in str(info.value)
+
+
+class _Searched(Exception):
+    """Raised by the spy in place of the base model's search."""
+
+
+@pytest.mark.parametrize(("noise", "weights", "expected"), [
+    (NOISE, None, "noise"),  # every channel's level given: the search is noise-weighted
+    (NOISE, {"tip_acceleration": 2.0}, "both"),  # ... times the user's weights
+    ({"joint_angle": NOISE["joint_angle"]}, {"tip_acceleration": 2.0}, "user"),  # not all given
+])
+def test_the_base_search_uses_the_given_noise_levels(payload_case, monkeypatch, noise, weights,
+                                                     expected):
+    import jaxflex.identification
+    from jaxflex.objective import noise_weights
+
+    records, _, _ = payload_case
+    seen = {}
+
+    def spy(records, model, **kwargs):
+        seen.update(kwargs)
+        raise _Searched
+
+    monkeypatch.setattr(jaxflex.identification, "identify", spy)
+    with pytest.raises(_Searched):
+        discover(records, noise=noise, weights=weights, fixed=HELD, budget=(1, 4))
+    from_noise = noise_weights(records, NOISE)
+    want = {"noise": from_noise, "user": weights,
+            "both": {c: w * (weights or {}).get(c, 1.0) for c, w in from_noise.items()}}[expected]
+    assert seen["weights"] == pytest.approx(want, rel=1e-12) and seen["fixed"] == HELD
+
+
+def test_cli_discover_takes_identify_fitting_options_and_reproduces(payload_case, tmp_path):
+    records, _, _ = payload_case
+    files = []
+    for r in records:
+        files.append(str(tmp_path / f"{r.name}.csv"))
+        save_record(r, files[-1])
+    initial = tmp_path / "start.json"
+    initial.write_text(json.dumps(START))
+    runs = []
+    for name in ("a.json", "b.json"):
+        assert main(["discover", *files, "--initial", str(initial), "--max-steps", "0",
+                     "--fix", "beta=9e-5", "--bound", "J_h=0.004:0.006",
+                     "--weight", "tip_acceleration=2", "--json", str(tmp_path / name)]) == 0
+        runs.append(json.loads((tmp_path / name).read_text()))
+    data = runs[0]
+    assert data["settings"]["fixed"] == HELD and data["settings"]["bounds"]["J_h"] == list(BOX)
+    assert data["settings"]["weights"] == {"joint_angle": 1.0, "tip_acceleration": 2.0}
+    assert data["steps"][-1]["params"]["beta"] == HELD["beta"]
+    assert BOX[0] <= data["steps"][-1]["params"]["J_h"] <= BOX[1]
+    # timings only under "timing": the same command twice gives the same JSON elsewhere
+    assert set(data["timing"]) == {"wall_time_s"} and "wall_time_s" not in data
+    assert [{k: v for k, v in r.items() if k != "timing"} for r in runs[1:]] == [
+        {k: v for k, v in data.items() if k != "timing"}]
+
+
 # --- slow: every effect, clean seeds, non-library effects, two effects, from scratch -----------
 
 
@@ -428,5 +527,6 @@ def test_a_rigid_estimate_beyond_a_bound_seeds_the_search_on_it():
     the bound itself (it ended one ulp past it, and identify refused the seed)."""
     records = make_records(inputs=("pulse", "half_sine"), duration=1.0)
     above = dataclasses.replace(_rigid(records), b_v=0.5, active=())
-    params = _initial_params(records, Model(), None, (2, 8), 0, False, above)
+    params = _initial_params(records, Model(), None, (2, 8), 0, False, above,
+                             {"bounds": None, "fixed": None, "weights": None, "noise": None})
     assert 1e-5 <= params["b_v"] <= 0.3

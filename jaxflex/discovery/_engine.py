@@ -84,23 +84,28 @@ class Engine:
     tested: tuple[int, ...] = ()  # the candidates (universe indices) to test and add
     anchor: np.ndarray | None = None  # the run's starting point: where pinned parameters return
     max_iterations: int = LM_STEPS
+    weights: dict[str, float] = dataclasses.field(default_factory=dict)  # user channel weights
 
     @classmethod
     def build(cls, model: Model, candidates: Sequence[Candidate], records: Dataset,
-              params: Mapping[str, float], noise: Noise | None) -> Engine:
+              params: Mapping[str, float], noise: Noise | None, *,
+              bounds: Mapping[str, tuple[float, float]] | None = None,
+              fixed: Mapping[str, float] | None = None,
+              weights: Mapping[str, float] | None = None) -> Engine:
         """The engine testing ``candidates`` on ``model``; the channels' noise levels are the
         given ones, the others estimated from the residuals of ``params``
-        (:func:`jaxflex.diagnosis.estimate_noise`).
+        (:func:`jaxflex.diagnosis.estimate_noise`). ``bounds``, ``fixed`` and ``weights`` are
+        :func:`jaxflex.identification.identify`'s (:meth:`Universe.build`); a channel's weight
+        ``w`` divides its noise level by ``√w`` (it counts ``w`` times in every fit and test),
+        weight 0 leaves it out.
 
         The universe holds every library effect (and the given candidates) whichever are
         tested, so that every call on the same model and record layout — score tests, a refit,
         an added effect, a discovery run — reuses one compiled Jacobian.
         """
         names = [c.name for c in candidates]
-        pool = [c for c in candidate_set() if c.name not in names] + list(candidates)
-        pool = sorted((c for c in pool if c.name not in model.effect_names),
-                      key=lambda c: c.name)
-        universe = Universe.build(model, pool)
+        universe = cls.make_universe(model, candidates, bounds, fixed)
+        pool = universe.candidates
         levels = noise_levels(noise)
         if any(c not in levels for c in CHANNELS):
             x = universe.vector(params)
@@ -112,16 +117,33 @@ class Engine:
             if not (math.isfinite(level.sigma) and level.sigma > 0):
                 raise ValueError(f"noise level of {c} must be positive, got {level.sigma!r}; "
                                  "give it with noise={...}")
-        objective = build_objective(records, universe.model, channels=CHANNELS)
+        objective = build_objective(records, universe.model, channels=CHANNELS, weights=weights,
+                                    fixed=universe.fixed, bounds=universe.bounds)
+        weights = dict(zip(objective.channels, map(float, objective.weights), strict=True))
         _, channel, _ = objective.layout()
-        sigma = np.array([levels[c].sigma for c in CHANNELS])[channel]
+        fitted = objective.channels
+        sigma = np.array([levels[c].sigma / math.sqrt(weights[c]) for c in fitted])[channel]
         half = np.array([0.5 * levels[c].step / levels[c].sigma
-                         if levels[c].kind == "quantised" else 0.0 for c in CHANNELS])[channel]
+                         if levels[c].kind == "quantised" else 0.0 for c in fitted])[channel]
+        half = half * np.sqrt(np.array([weights[c] for c in fitted])[channel])
         measured = np.concatenate([np.asarray(m).reshape(-1) for m in objective.measured])
         problem = Problem(objective, jnp.asarray(measured / sigma), jnp.asarray(sigma))
         tested = tuple(i for i, c in enumerate(pool) if c.name in names)
         anchor = np.clip(universe.vector(params), universe.space.lower, universe.space.upper)
-        return cls(universe, problem, records, levels, half, half > 0, tested, anchor)
+        return cls(universe, problem, records, levels, half, half > 0, tested, anchor,
+                   weights=weights)
+
+    @staticmethod
+    def make_universe(model: Model, candidates: Sequence[Candidate],
+                 bounds: Mapping[str, tuple[float, float]] | None = None,
+                 fixed: Mapping[str, float] | None = None) -> Universe:
+        """The universe of ``model``, every library effect and ``candidates`` (bounds and fixed
+        values validated and applied)."""
+        names = [c.name for c in candidates]
+        pool = [c for c in candidate_set() if c.name not in names] + list(candidates)
+        pool = sorted((c for c in pool if c.name not in model.effect_names),
+                      key=lambda c: c.name)
+        return Universe.build(model, pool, bounds, fixed)
 
     def candidate(self, name: str) -> int:
         """Universe index of a candidate by name."""
@@ -341,12 +363,12 @@ class Engine:
         """``C`` of any predictions of the records (e.g. of another model)."""
         cost = 0.0
         for record, pred in zip(self.records, predictions, strict=True):
-            for c in CHANNELS:
+            for c, w in self.weights.items():
                 level = self.noise[c]
                 u = (record.channel(c) - np.asarray(pred.channel(c))) / level.sigma
                 if level.kind == "quantised":
                     u = np.maximum(np.abs(u) - 0.5 * level.step / level.sigma, 0.0)
-                cost += float(u @ u)
+                cost += w * float(u @ u)
         return cost
 
     def discovery_fit(self, x: np.ndarray, active: Sequence[int], cost: float) -> DiscoveryFit:
@@ -403,6 +425,6 @@ class Engine:
 
 
 def simulate_all(universe: Universe, x: np.ndarray, records: Dataset) -> tuple[Outputs, ...]:
-    params = dict(zip(universe.space.names, map(float, x), strict=True))
+    params = {**universe.fixed, **dict(zip(universe.space.names, map(float, x), strict=True))}
     return tuple(simulate(universe.model, params, r.torque, dt=r.dt) for r in records)
 

@@ -16,7 +16,7 @@ from jaxtyping import Array, ArrayLike, Float
 from jaxflex.discovery.candidates import Candidate, Variant
 from jaxflex.effects import Effect
 from jaxflex.model import Model
-from jaxflex.objective import Objective
+from jaxflex.objective import Objective, free_specs
 from jaxflex.parameters import ParameterSpace
 
 
@@ -40,9 +40,16 @@ class Universe:
     space: ParameterSpace
     null: np.ndarray  # null of each candidate parameter (0 for the base ones, unused)
     log: np.ndarray  # log-scale flag per parameter
+    fixed: dict[str, float]  # base parameters held at given values (not in ``space``)
+    bounds: dict[str, tuple[float, float]]  # the given bounds, in universe names
 
     @classmethod
-    def build(cls, base: Model, candidates: Sequence[Candidate]) -> Universe:
+    def build(cls, base: Model, candidates: Sequence[Candidate],
+              bounds: Mapping[str, tuple[float, float]] | None = None,
+              fixed: Mapping[str, float] | None = None) -> Universe:
+        """The universe of ``base`` and ``candidates``; ``bounds`` replace the search bounds of
+        base or effect parameters (every setting of an effect), ``fixed`` holds base parameters,
+        both validated as :func:`jaxflex.identification.identify` validates them."""
         members, slots = [], []
         for i, cand in enumerate(candidates):
             if cand.name in base.effect_names:
@@ -53,14 +60,33 @@ class Universe:
                 slots.append(Slot(i, j, effect, tuple(p.name for p in variant.parameters),
                                    tuple(p.name for p in effect.parameters)))
         model = base.with_effects(*members)
-        space = model.space
+        own = {s.name: s for s in base.space.specs}
+        for slot in slots:
+            own.update({p.name: p for p in slot.effect.parameters if p.name not in own})
+        free_specs(ParameterSpace(own.values()), bounds, fixed)  # names, pairs, values
+        held = sorted(set(fixed or {}) - set(base.space.names))
+        if held:
+            raise ValueError(f"fixed names effect parameter(s) {held}; discover holds only "
+                             f"base-model parameters fixed: {list(base.space.names)}")
+        owner = {u: o for slot in slots for u, o in zip(slot.names, slot.own_names, strict=True)}
+        given = dict(bounds or {})
+        bounds = {n: tuple(map(float, given[owner.get(n, n)])) for n in model.space.names
+                  if owner.get(n, n) in given}
+        specs, values = free_specs(model.space, bounds, fixed)
+        space = ParameterSpace(specs)
         null = np.array([0.0 if s.null is None else s.null for s in space.specs])
         log = np.array([s.log_scale for s in space.specs])
-        return cls(model, base, tuple(candidates), tuple(slots), space, null, log)
+        return cls(model, base, tuple(candidates), tuple(slots), space, null, log,
+                   {n: float(v) for n, v in values.items()}, bounds)
+
+    @property
+    def base_names(self) -> tuple[str, ...]:
+        """The fitted (not fixed) base parameters: the first :attr:`n_base` of ``space``."""
+        return tuple(n for n in self.base.space.names if n not in self.fixed)
 
     @property
     def n_base(self) -> int:
-        return len(self.base.space)
+        return len(self.base_names)
 
     def index(self, names: Iterable[str]) -> np.ndarray:
         return np.array([self.space.names.index(n) for n in names], dtype=int)
@@ -69,7 +95,7 @@ class Universe:
         """Universe vector: the base parameters and active slots from ``params`` (own names),
         every other candidate parameter at its null."""
         x = self.null.copy()
-        for k, n in enumerate(self.base.space.names):
+        for k, n in enumerate(self.base_names):
             x[k] = float(params[n])
         for s in active:
             slot = self.slots[s]
@@ -85,8 +111,8 @@ class Universe:
         return mask
 
     def params(self, x: np.ndarray, active: Sequence[int]) -> dict[str, float]:
-        """Own-named parameters of the base and the active slots."""
-        out = {n: float(x[k]) for k, n in enumerate(self.base.space.names)}
+        """Own-named parameters of the base (fixed ones included) and the active slots."""
+        out = {**self.fixed, **{n: float(x[k]) for k, n in enumerate(self.base_names)}}
         for s in active:
             slot = self.slots[s]
             for u, own in zip(slot.names, slot.own_names, strict=True):

@@ -20,6 +20,7 @@ from jaxflex.diagnosis import (
     Diagnosis,
     Noise,
     diagnose,
+    noise_levels,
 )
 from jaxflex.diagnosis.noise import CHANNELS
 from jaxflex.discovery._confirm import confirm, profile_scan
@@ -31,7 +32,7 @@ from jaxflex.discovery.report import Confirmation, DiscoveryFit, DiscoveryReport
 from jaxflex.discovery.scores import ALPHA, ScoreResult
 from jaxflex.effects import Effect
 from jaxflex.model import Model
-from jaxflex.objective import as_dataset
+from jaxflex.objective import as_dataset, check_weights
 from jaxflex.simulation import Outputs
 
 MIN_EXPLAINED = 0.9
@@ -109,24 +110,44 @@ def _rigid_step(engine: Engine, estimate, records: Dataset, holdout: Dataset | N
                 label="rigid", predictions=preds)
 
 
+def _base_weights(records: Dataset, noise: Noise | None,
+                  weights: Mapping[str, float] | None) -> dict[str, float] | None:
+    """Channel weights of the base model's search: the noise-derived ones
+    (:func:`jaxflex.objective.noise_weights`) where ``noise`` gives every fitted channel's level,
+    times the user's ``weights`` — the weighting the discovery fits use."""
+    from jaxflex.objective import DEFAULT_CHANNELS, noise_weights
+
+    if noise is None or any(c not in noise_levels(noise) for c in DEFAULT_CHANNELS):
+        return None if weights is None else dict(weights)
+    user = dict(weights or {})
+    return {c: w * float(user.get(c, 1.0))
+            for c, w in noise_weights(records, noise, DEFAULT_CHANNELS).items()}
+
+
 def _initial_params(records: Dataset, model: Model, initial: Any, budget: tuple[int, int],
-                    seed: int, progress: bool, rigid) -> dict[str, float]:
-    """The starting fit of the base model: ``initial``, or :func:`jaxflex.identification.identify`
-    (differential evolution, ``budget = (generations, population)``, seeded around the
-    rigid-body estimate, then Levenberg–Marquardt)."""
+                    seed: int, progress: bool, rigid, fit_options: Mapping[str, Any]
+                    ) -> dict[str, float]:
+    """The starting fit of the base model: ``initial`` (fixed values put in), or
+    :func:`jaxflex.identification.identify` (differential evolution,
+    ``budget = (generations, population)``, seeded around the rigid-body estimate, then
+    Levenberg–Marquardt) with the run's bounds, fixed values and channel weights."""
+    fixed = {k: float(v) for k, v in (fit_options["fixed"] or {}).items()}
     if initial is not None:
-        return full_params(model, initial)
+        return {**full_params(model, initial), **fixed}
     from jaxflex.identification import identify
 
+    bounds = {k: v for k, v in (fit_options["bounds"] or {}).items() if k in model.space.names}
+    weights = _base_weights(records, fit_options["noise"], fit_options["weights"])
     seeds = None
     if rigid is not None:
         from jaxflex.rigid import warm_start
 
-        space = model.space
+        space = model.space.with_bounds(bounds)
         units = warm_start(rigid, space, population=budget[1], seed=seed)
         seeds = [{k: float(v) for k, v in space.from_unit(u).items()} for u in units]
     fit = identify(records, model, seed=seed, generations=budget[0], population=budget[1],
-                   progress=progress, init_population=seeds, intervals=False)
+                   progress=progress, init_population=seeds, intervals=False,
+                   bounds=bounds or None, fixed=fixed or None, weights=weights)
     return full_params(model, fit)
 
 
@@ -147,6 +168,9 @@ def discover(
     initial: Mapping[str, ArrayLike] | Any = None,
     budget: int | tuple[int, int] | None = None,
     noise: Noise | None = None,
+    bounds: Mapping[str, tuple[float, float]] | None = None,
+    fixed: Mapping[str, float] | None = None,
+    weights: Mapping[str, float] | None = None,
     max_confirm: int = MAX_CONFIRM,
 ) -> DiscoveryReport:
     """Find the effects the model is missing, one at a time (see :mod:`jaxflex.discovery`).
@@ -160,7 +184,17 @@ def discover(
     candidates. ``noise`` gives channels' noise levels, a white σ in the channel's unit or a
     :class:`~jaxflex.diagnosis.NoiseLevel` (e.g. ``{"joint_angle": 1e-4}``); the others are
     estimated from the first fit's residuals (:func:`jaxflex.diagnosis.estimate_noise`), and the
-    report states each level and how it was obtained. Returns a :class:`DiscoveryReport`.
+    report states each level and how it was obtained; where it gives every channel, the base
+    model's search uses them too.
+
+    ``bounds``, ``fixed`` and ``weights`` are :func:`jaxflex.identification.identify`'s, validated
+    by the same code: ``bounds`` replace the search box of base parameters and of effect
+    parameters (used when the effect is added), ``fixed`` holds base parameters at their values
+    in every fit (not fitted, not counted, not a nuisance of the score tests), and a channel's
+    weight ``w`` scales its noise-whitened residual by ``√w`` (its noise level divided by
+    ``√w``; 0 leaves the channel out of the fits and tests). Unlike ``identify``, weights combine
+    with noise levels: the tests assume the weighted residuals are unit white noise, so weights
+    other than 0 and 1 change the tests' level. Returns a :class:`DiscoveryReport`.
     """
     t0 = time.perf_counter()
     records = as_dataset(records)
@@ -179,9 +213,13 @@ def discover(
         raise ValueError(f"budget={budget!r} must be generations or (generations, population)")
     budget = (int(budget[0]), int(budget[1]))
     cands = tuple(c for c in candidate_set(candidates) if c.name not in model.effect_names)
+    fit_options = {"bounds": bounds, "fixed": fixed, "weights": weights, "noise": noise}
+    Engine.make_universe(model, cands, bounds, fixed)  # bad names or values: fail before any fit
+    check_weights(weights, CHANNELS)
     rigid = _rigid(records)
-    start = _initial_params(records, model, initial, budget, seed, progress, rigid)
-    engine = Engine.build(model, cands, records, start, noise)
+    start = _initial_params(records, model, initial, budget, seed, progress, rigid, fit_options)
+    engine = Engine.build(model, cands, records, start, noise, bounds=bounds, fixed=fixed,
+                          weights=weights)
     u = engine.universe
     names = [c.name for c in u.candidates]
 
@@ -258,6 +296,10 @@ def discover(
                   "budget": budget if initial is None else None,
                   "initial": "given" if initial is not None else "differential evolution",
                   "noise": {c: v.to_dict() for c, v in engine.noise.items()},
+                  "bounds": {**{n: [u.space[n].lower, u.space[n].upper]
+                                for n in u.base_names},
+                             **{n: list(map(float, b)) for n, b in (bounds or {}).items()}},
+                  "fixed": dict(u.fixed), "weights": dict(engine.weights),
                   "min_explained": MIN_EXPLAINED},
         wall_time=time.perf_counter() - t0,
         noise_floor={c: d.noise_floor_nrmse for c, d in steps[-1].diagnosis.channels.items()},

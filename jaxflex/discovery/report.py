@@ -211,7 +211,7 @@ class DiscoveryReport:
             "withdrawn": list(self.withdrawn),
             "noise_floor": self.noise_floor,
             "settings": self.settings,
-            "wall_time_s": self.wall_time,
+            "timing": {"wall_time_s": self.wall_time},  # times only here: the rest reproduces
             "provenance": provenance(),
         })
 
