@@ -136,7 +136,7 @@ def identify_with_arm(args: argparse.Namespace, arm: Arm, arm_file: str) -> int:
     from jaxflex._io import all_or_nothing
     from jaxflex.cli._checks import JSON_SUFFIXES, check_outputs
     from jaxflex.cli._options import model_from
-    from jaxflex.cli.identify import check_finite_cost, sources
+    from jaxflex.cli.identify import search, sources
 
     window = parse_window(args.window)
     records = load_rig_records(args.data, args)
@@ -144,19 +144,7 @@ def identify_with_arm(args: argparse.Namespace, arm: Arm, arm_file: str) -> int:
                            inputs=[*sources(records), arm_file])
     ready = model_records(arm, records, window)
     options = arm_fit_keywords(args, identify, arm, records[0])
-    fit = identify(
-        ready,
-        arm.model(*model_from(args.effect).effects),
-        method=args.method,
-        seed=args.seed,
-        generations=args.generations,
-        population=args.population,
-        refine=args.refine,
-        progress=not args.quiet,
-        refine_starts=args.refine_starts,
-        **options,
-    )
-    check_finite_cost(fit.cost, "bounds" in options)
+    fit = search(args, ready, arm.model(*model_from(args.effect).effects), options)
     fit = dataclasses.replace(fit, settings=fit.settings | arm_settings(arm_file, window))
     print(fit.summary(), end="")
     with all_or_nothing():

@@ -70,20 +70,7 @@ def run(args: argparse.Namespace) -> int:
         [("--out", args.out, JSON_SUFFIXES), ("--plot", args.plot, FIGURE_SUFFIXES)],
         overwrite=args.overwrite, inputs=sources(records),
     )
-    keywords = fit_keywords(args, identify)
-    fit = identify(
-        records,
-        model_from(args.effect),
-        method=args.method,
-        seed=args.seed,
-        generations=args.generations,
-        population=args.population,
-        refine=args.refine,
-        progress=not args.quiet,
-        refine_starts=args.refine_starts,
-        **keywords,
-    )
-    check_finite_cost(fit.cost, "bounds" in keywords)
+    fit = search(args, records, model_from(args.effect), fit_keywords(args, identify))
     print(fit.summary(), end="")
     with all_or_nothing():
         fit.to_json(out, overwrite=args.overwrite)
@@ -95,6 +82,27 @@ def run(args: argparse.Namespace) -> int:
     for path in (out, *plot):
         print(f"wrote {path}")
     return 0
+
+
+def search(args: argparse.Namespace, records, model, keywords: dict):
+    """:func:`jaxflex.identify` with the command's search settings; a fit whose cost is not
+    finite is refused before anything is written."""
+    from jaxflex.identification import identify
+
+    fit = identify(
+        records,
+        model,
+        method=args.method,
+        seed=args.seed,
+        generations=args.generations,
+        population=args.population,
+        refine=args.refine,
+        progress=not args.quiet,
+        refine_starts=args.refine_starts,
+        **keywords,
+    )
+    check_finite_cost(fit.cost, "bounds" in keywords)
+    return fit
 
 
 def sources(records) -> list[str]:
