@@ -15,8 +15,9 @@ from __future__ import annotations
 import argparse
 import math
 import os
-from collections.abc import Iterable, Sequence
+from collections.abc import Callable, Iterable, Sequence
 from pathlib import Path
+from typing import Any
 
 from jaxflex._io import OutputError, check_writable, same_file
 from jaxflex.cli import UsageError
@@ -113,12 +114,17 @@ def add_max_samples(p: argparse.ArgumentParser) -> None:
     )
 
 
+def _converted(text: str, convert: Callable[[str], Any], kind: str):
+    """``convert(text)``, or argparse's error saying what ``text`` is not."""
+    try:
+        return convert(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not {kind}") from None
+
+
 def seed(text: str) -> int:
     """argparse type of a random seed: an integer in [0, 2**32 - 1]."""
-    try:
-        value = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"{text!r} is not a whole number") from None
+    value = _converted(text, int, "a whole number")
     if not 0 <= value <= MAX_SEED:
         raise argparse.ArgumentTypeError(f"{text} must lie in [0, {MAX_SEED}]")
     return value
@@ -126,10 +132,7 @@ def seed(text: str) -> int:
 
 def positive_int(text: str) -> int:
     """argparse type of a count >= 1."""
-    try:
-        value = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"{text!r} is not a whole number") from None
+    value = _converted(text, int, "a whole number")
     if value < 1:
         raise argparse.ArgumentTypeError(f"{text} must be >= 1")
     return value
@@ -137,10 +140,7 @@ def positive_int(text: str) -> int:
 
 def positive_float(text: str) -> float:
     """argparse type of a finite number > 0."""
-    try:
-        value = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"{text!r} is not a number") from None
+    value = _converted(text, float, "a number")
     if not (math.isfinite(value) and value > 0):
         raise argparse.ArgumentTypeError(f"{text} must be a finite number > 0")
     return value
