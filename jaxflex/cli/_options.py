@@ -23,7 +23,8 @@ MAX_BOUND_DECADES = 12
 """Widest ``--bound`` (upper/lower) accepted: beyond it candidates overflow the simulation."""
 
 
-def _number(text: str, label: str) -> float:
+def finite_number(text: str, label: str) -> float:
+    """``text`` as a finite float; a UsageError naming ``label`` otherwise."""
     try:
         value = float(text)
     except ValueError:
@@ -34,7 +35,7 @@ def _number(text: str, label: str) -> float:
 
 
 def _positive(text: str, label: str) -> float:
-    value = _number(text, label)
+    value = finite_number(text, label)
     if value <= 0:
         raise UsageError(f"{label}: {text!r} must be > 0")
     return value
@@ -51,7 +52,7 @@ def _interval(text: str, label: str) -> tuple[float, float]:
     lo, sep, hi = text.partition(":")
     if not sep:
         raise UsageError(f"{label}={text!r}: expected LO:HI")
-    low, high = _number(lo, label), _number(hi, label)
+    low, high = finite_number(lo, label), finite_number(hi, label)
     if not low < high:
         raise UsageError(f"{label}={text}: lower bound {low!r} must be below upper {high!r}")
     decades = math.log10(high) - math.log10(low) if low > 0 else 0.0
@@ -77,9 +78,9 @@ PAIR_OPTIONS: tuple[PairOption, ...] = (
     PairOption("--bound", "bounds", "NAME=LO:HI",
                "search bounds of a parameter (repeatable), e.g. J_h=1e-3:1e-2", _interval),
     PairOption("--fix", "fixed", "NAME=VALUE", "hold a parameter at a value (repeatable)",
-               _number),
+               finite_number),
     PairOption("--weight", "weights", "CHANNEL=W",
-               "weight of an output channel (repeatable; default 1 each)", _number),
+               "weight of an output channel (repeatable; default 1 each)", finite_number),
     PairOption("--noise", "noise", "CHANNEL=SIGMA",
                "noise standard deviation of a channel, in its unit (repeatable; default: "
                "estimated from the records)", _noise_level),
@@ -150,6 +151,6 @@ def add_record_options(p: argparse.ArgumentParser) -> None:
 
 
 __all__ = [
-    "PAIR_OPTIONS", "PairOption", "add_fit_options", "add_record_options", "fit_keywords",
-    "model_from", "pair_values",
+    "PAIR_OPTIONS", "PairOption", "add_fit_options", "add_record_options", "finite_number",
+    "fit_keywords", "model_from", "pair_values",
 ]

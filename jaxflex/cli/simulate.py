@@ -23,6 +23,7 @@ from jaxflex.cli._checks import (
     positive_float,
     seed,
 )
+from jaxflex.cli._options import finite_number
 from jaxflex.signals import INPUT_NAMES
 
 TIMING_SETTINGS = ("dt", "duration")
@@ -79,13 +80,7 @@ def parse_assignments(items: list[str]) -> dict[str, float]:
         name = name.strip()
         if not sep or not name:
             raise UsageError(f"--set expects NAME=VALUE, got {item!r}")
-        try:
-            value = float(text)
-        except ValueError:
-            raise UsageError(f"--set {name}: {text!r} is not a number") from None
-        if not math.isfinite(value):
-            raise UsageError(f"--set {name}: value must be finite, got {text!r}")
-        values[name] = value
+        values[name] = finite_number(text, f"--set {name}")
     return values
 
 
