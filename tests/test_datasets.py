@@ -29,20 +29,22 @@ REAL_DATA_DIR = _local_copy()
 """The local copy named by JAXFLEX_DATA_DIR at start-up, or None to use the network (or skip)."""
 
 
-@pytest.fixture(scope="module")
-def rotflex():
+def _or_skip(function, *args):
+    """``function(*args)``, or skip the test saying why the real-rig data are not there."""
     try:
-        return datasets.load("quanser_rotflex", REAL_DATA_DIR)
+        return function(*args)
     except datasets.DataUnavailable as err:
         pytest.skip(f"real-rig data unavailable: JAXFLEX_DATA_DIR unset and no network ({err})")
+
+
+@pytest.fixture(scope="module")
+def rotflex():
+    return _or_skip(datasets.load, "quanser_rotflex", REAL_DATA_DIR)
 
 
 @pytest.fixture(scope="module")
 def rotflex_files():
-    try:
-        return datasets.fetch("quanser_rotflex", REAL_DATA_DIR)
-    except datasets.DataUnavailable as err:
-        pytest.skip(f"real-rig data unavailable: JAXFLEX_DATA_DIR unset and no network ({err})")
+    return _or_skip(datasets.fetch, "quanser_rotflex", REAL_DATA_DIR)
 
 
 def test_registry_pins_every_file_by_commit_and_sha256():
@@ -165,10 +167,7 @@ def test_download_fills_the_cache_and_checks_hashes(mirror, tmp_path):
 
 
 def test_download_of_the_published_files(mirror, tmp_path):
-    try:
-        files = datasets.fetch("daisy_robot_arm", REAL_DATA_DIR)
-    except datasets.DataUnavailable as err:
-        pytest.skip(f"real-rig data unavailable: JAXFLEX_DATA_DIR unset and no network ({err})")
+    files = _or_skip(datasets.fetch, "daisy_robot_arm", REAL_DATA_DIR)
     source = datasets.DATASETS["daisy_robot_arm"].source
     for file, (upstream, _) in source.files.items():
         target = mirror / source.repository / source.commit / upstream
@@ -184,10 +183,7 @@ def test_download_of_the_published_files(mirror, tmp_path):
 
 
 def test_two_link_rig_is_refused_with_the_reason(tmp_path):
-    try:
-        datasets.fetch("quanser_2dsfl", REAL_DATA_DIR)
-    except datasets.DataUnavailable as err:
-        pytest.skip(f"real-rig data unavailable: JAXFLEX_DATA_DIR unset and no network ({err})")
+    _or_skip(datasets.fetch, "quanser_2dsfl", REAL_DATA_DIR)
     with pytest.raises(datasets.DatasetError, match="quanser_2dsfl: a two-link arm"):
         datasets.load("quanser_2dsfl", REAL_DATA_DIR)
 

@@ -98,13 +98,21 @@ def _same_time(time: np.ndarray, other: np.ndarray, path: Path) -> None:
         raise DatasetError(f"{path}: its time column differs from the other files of the run")
 
 
+def _run(files: dict[str, Path], *names: tuple[str, str, int]) -> list[np.ndarray]:
+    """The matrices of one run, given as (file, variable, rows) for the angle, the deflection
+    and the voltage; every file must share the angle file's time column."""
+    theta, *others = (_matrix(files[name], variable, rows) for name, variable, rows in names)
+    for (name, _, _), other in zip(names[1:], others, strict=True):
+        _same_time(theta[0], other[0], files[name])
+    return [theta, *others]
+
+
 def convert(files: dict[str, Path]) -> dict[str, Record]:
     """The two runs as records (see the module doc), in SI units."""
-    theta = _matrix(files["data_theta.mat"], "data_theta", 3)
-    alpha = _matrix(files["data_alpha.mat"], "data_alpha", 2)
-    volts = _matrix(files["data_vm.mat"], "data_vm", 2)
-    _same_time(theta[0], alpha[0], files["data_alpha.mat"])
-    _same_time(theta[0], volts[0], files["data_vm.mat"])
+    theta, alpha, volts = _run(
+        files, ("data_theta.mat", "data_theta", 3), ("data_alpha.mat", "data_alpha", 2),
+        ("data_vm.mat", "data_vm", 2),
+    )
     square = dict(
         time=theta[0],
         joint_angle=np.deg2rad(theta[2]),
@@ -115,11 +123,10 @@ def convert(files: dict[str, Path]) -> dict[str, Record]:
         },
         files="data_theta.mat, data_alpha.mat, data_vm.mat",
     )
-    theta = _matrix(files["theta985.mat"], "theta", 3)
-    alpha = _matrix(files["alpha985.mat"], "alpha", 2)
-    volts = _matrix(files["voltage985.mat"], "u", 2)
-    _same_time(theta[0], alpha[0], files["alpha985.mat"])
-    _same_time(theta[0], volts[0], files["voltage985.mat"])
+    theta, alpha, volts = _run(
+        files, ("theta985.mat", "theta", 3), ("alpha985.mat", "alpha", 2),
+        ("voltage985.mat", "u", 2),
+    )
     random = dict(
         time=theta[0],
         joint_angle=theta[2],
