@@ -37,6 +37,7 @@ from jaxflex.data import OUTPUT_COLUMNS, Dataset, Record
 from jaxflex.metrics import frf_nrmse, h1_frf, nrmse, relative_error, spectral_window
 from jaxflex.modal import free_hub_modes
 from jaxflex.model import Model
+from jaxflex.sensors import calibrated
 from jaxflex.simulation import Outputs, simulate
 
 ROLES = ("fit", "held-out")
@@ -296,7 +297,7 @@ def compare(
 
     rows, simulated = [], []
     for record in dataset:
-        out = simulate(model, values, record.torque, dt=record.dt)
+        out = calibrated(model, values, simulate(model, values, record.torque, dt=record.dt))
         role = "fit" if record.name in fit_names else "held-out"
         rows.append(
             compare_record(record, out, role, t_end, settings, encoder_counts, accel_sigma)

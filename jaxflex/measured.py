@@ -22,7 +22,7 @@ from jaxflex.arm import Arm
 from jaxflex.data import Record
 from jaxflex.effects import Effect
 from jaxflex.metrics import nrmse
-from jaxflex.sensors import readings
+from jaxflex.sensors import calibrated, readings
 from jaxflex.simulation import simulate
 
 REST_SPAN = 0.05
@@ -123,7 +123,7 @@ def validate(
     scores: dict[str, dict[str, float]] = {}
     for record, window in zip(records, windows, strict=True):
         ready = model_record(arm, record, window)
-        out = simulate(model, dict(params), ready.torque, ready.dt)
+        out = calibrated(model, dict(params), simulate(model, dict(params), ready.torque, ready.dt))
         scores[record.name] = {
             sensor.channel: nrmse(ready.channel(output), out.channel(output))
             for sensor, output, _ in _channels(arm, record)
@@ -153,7 +153,8 @@ def logged_record(
     rng = None if seed is None else np.random.default_rng(seed)
     columns = {arm.drive.name: np.asarray(signal, dtype=np.float64)}
     for sensor in arm.sensors:
-        reading = np.asarray(readings([sensor], model, outputs)[sensor.channel])
+        read = readings([sensor], model, outputs, params=dict(params))
+        reading = np.asarray(read[sensor.channel])
         columns[sensor.channel] = reading if rng is None else sensor.observe(reading, rng)
     standard = {c: columns.pop(c, None) for c in ("torque", "joint_angle", "tip_acceleration")}
     return Record(time=time, **standard, extras=columns, name=name,

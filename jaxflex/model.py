@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 import dataclasses
-from collections.abc import Iterable
+from collections.abc import Iterable, Mapping
 
 import equinox as eqx
 import jax.numpy as jnp
@@ -140,3 +140,10 @@ class Model(eqx.Module):
         for effect in self.effects:
             torque = effect.input_torque(params, torque, h)
         return torque
+
+    def readings(self, params: Params, readings: Mapping[str, Array]) -> dict[str, Array]:
+        """Output channels (by name) after every effect's calibration (a sensor gain, offset)."""
+        readings = dict(readings)
+        for effect in self.effects:
+            readings = effect.readings(params, readings)
+        return readings

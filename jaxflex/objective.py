@@ -118,7 +118,8 @@ class Objective(eqx.Module):
 
         def one(torque):
             out = simulate_core(self.model, full, torque, self.dt)
-            return jnp.stack([out.channel(c) for c in self.channels])
+            read = self.model.readings(full, {c: out.channel(c) for c in self.channels})
+            return jnp.stack([read[c] for c in self.channels])
 
         return tuple(jax.vmap(one)(torque) for torque in self.torque)
 

@@ -13,6 +13,10 @@ at those *stations* (:mod:`jaxflex.stations`) as linear maps of its modal state.
   ``α = L²/(3(L − x)) · w''(x)``;
 * :class:`Accelerometer` at ``x`` — ``(r + x)·θ'' + ẅ(x)`` (``r`` the clamp offset);
 * :class:`DeflectionSensor` at ``x`` — ``w(x)`` in the hub frame (a tip laser, a camera).
+
+A calibration that is not known is an effect on the readings (``sensor_gain``, ``sensor_offset``
+in :mod:`jaxflex.effects`), identified with the physical parameters: :func:`calibrated` applies
+it to a simulation's outputs, :func:`readings` to a sensor's reading.
 """
 
 from __future__ import annotations
@@ -27,7 +31,8 @@ import numpy as np
 from jaxtyping import Array, Float
 
 from jaxflex.model import Model
-from jaxflex.simulation import Outputs
+from jaxflex.parameters import Params
+from jaxflex.simulation import OUTPUT_NAMES, Outputs
 
 
 class Sensor(eqx.Module):
@@ -195,34 +200,39 @@ class StrainGauge(_LinkSensor):
         return "root_strain", self.scale(model) / (0.5 * model.testbed.thickness)
 
 
-class Accelerometer(_LinkSensor):
+class _StationSensor(_LinkSensor):
+    """A link sensor that reads one station output as it is; at the tip that output is also one
+    of the simulator's standard outputs."""
+
+    station_output: ClassVar[str]
+    tip_output: ClassVar[str]
+
+    def quantity(self, model: Model, outputs: Outputs) -> Array:
+        k = self._station(model)
+        return getattr(outputs, self.station_output)[..., k]
+
+    def simulated_output(self, model: Model) -> tuple[str, float] | None:
+        return (self.tip_output, 1.0) if self.x == model.testbed.length else None
+
+
+class Accelerometer(_StationSensor):
     """Transverse acceleration (m/s²) at ``x``: ``(r + x)·θ'' + ẅ(x)``."""
 
     kind: ClassVar[str] = "accelerometer"
     unit: ClassVar[str] = "m/s^2"
     channel: str = "acceleration"
-
-    def quantity(self, model: Model, outputs: Outputs) -> Array:
-        k = self._station(model)
-        return outputs.station_acceleration[..., k]
-
-    def simulated_output(self, model: Model) -> tuple[str, float] | None:
-        return ("tip_acceleration", 1.0) if self.x == model.testbed.length else None
+    station_output: ClassVar[str] = "station_acceleration"
+    tip_output: ClassVar[str] = "tip_acceleration"
 
 
-class DeflectionSensor(_LinkSensor):
+class DeflectionSensor(_StationSensor):
     """Link deflection ``w(x)`` (m) in the frame that turns with the hub."""
 
     kind: ClassVar[str] = "deflection"
     unit: ClassVar[str] = "m"
     channel: str = "tip_deflection"
-
-    def quantity(self, model: Model, outputs: Outputs) -> Array:
-        k = self._station(model)
-        return outputs.station_deflection[..., k]
-
-    def simulated_output(self, model: Model) -> tuple[str, float] | None:
-        return ("tip_deflection", 1.0) if self.x == model.testbed.length else None
+    station_output: ClassVar[str] = "station_deflection"
+    tip_output: ClassVar[str] = "tip_deflection"
 
 
 SENSORS: dict[str, type[Sensor]] = {
@@ -241,15 +251,44 @@ def with_stations(model: Model, sensors: Sequence[Sensor]) -> Model:
     return dataclasses.replace(model, stations=stations(sensors))
 
 
+def calibrated(model: Model, params: Params, outputs: Outputs) -> Outputs:
+    """``outputs`` after the model's effects on the readings (a sensor's gain or offset, see
+    :meth:`~jaxflex.effects.Effect.readings`); the motion is what the solve gave."""
+    standard = {name: outputs.channel(name) for name in OUTPUT_NAMES}
+    changed = model.readings(params, standard)
+    names = [n for n in OUTPUT_NAMES if changed[n] is not standard[n]]
+    if not names:
+        return outputs
+    return eqx.tree_at(
+        lambda o: [getattr(o, n) for n in names], outputs, [changed[n] for n in names]
+    )
+
+
 def readings(
-    sensors: Sequence[Sensor], model: Model, outputs: Outputs, channels: Sequence[str] | None = None
+    sensors: Sequence[Sensor],
+    model: Model,
+    outputs: Outputs,
+    channels: Sequence[str] | None = None,
+    params: Params | None = None,
 ) -> dict[str, Array]:
     """Noise-free readings by channel (all sensors, or those whose channel is in ``channels``).
 
-    A record may hold any subset of an arm's sensors: pass its columns as ``channels``.
+    A record may hold any subset of an arm's sensors: pass its columns as ``channels``. With
+    ``params``, the model's effects on the readings act too: a sensor whose standard output
+    (:meth:`Sensor.simulated_output`) an effect changed reads ``gain·factor·output + offset``
+    from the changed output.
     """
     chosen = [s for s in sensors if channels is None or s.channel in channels]
-    return {s.channel: s.measure(model, outputs) for s in chosen}
+    changed = outputs if params is None else calibrated(model, params, outputs)
+    values = {}
+    for sensor in chosen:
+        mapping = sensor.simulated_output(model)
+        if mapping is not None and changed.channel(mapping[0]) is not outputs.channel(mapping[0]):
+            output, factor = mapping
+            values[sensor.channel] = sensor.gain * factor * changed.channel(output) + sensor.offset
+        else:
+            values[sensor.channel] = sensor.measure(model, outputs)
+    return values
 
 
 def noise_levels(sensors: Sequence[Sensor]) -> Mapping[str, float]:

@@ -162,7 +162,8 @@ def test_two_link_records_are_refused(tmp_path, reference_log, capsys):
 @pytest.mark.slow  # about 40 s: compiling the search and the refinement
 def test_identify_names_a_strain_gauge_calibrated_wrong(tmp_path):
     """The rig's gauge reads 1.25 times what the arm file says: identify with the arm and
-    --effect strain_gauge_gain gives e_sg = 0.25 (motion parameters held at their truth)."""
+    --effect sensor_gain:root_strain gives gain_root_strain = 1.25 (motion parameters held at
+    their truth)."""
     true_arm = tmp_path / "true.toml"
     true_arm.write_text(ARMS.joinpath("quanser_rotflex.toml").read_text().replace(
         'calibration = "deflection_angle"', 'calibration = "deflection_angle"\ngain = 1.25'))
@@ -170,7 +171,8 @@ def test_identify_names_a_strain_gauge_calibrated_wrong(tmp_path):
     assert main(["simulate", "--arm", str(true_arm), "--input", "triangular", "--duration", "1",
                  "--rest", "0.1", "--out", str(log)]) == 0
     fixed = [f"--fix={k}={float(v)!r}" for k, v in ROTFLEX.reference_parameters().items()]
-    assert main(["identify", str(log), "--arm", ROTFLEX_FILE, "--effect", "strain_gauge_gain",
+    assert main(["identify", str(log), "--arm", ROTFLEX_FILE, "--effect", "sensor_gain:root_strain",
                  *fixed, "--generations", "2", "--population", "8", "--quiet",
                  "--out", str(fit)]) == 0
-    assert json.loads(fit.read_text())["params"]["e_sg"] == pytest.approx(0.25, rel=1e-6)
+    gain = json.loads(fit.read_text())["params"]["gain_root_strain"]
+    assert gain == pytest.approx(1.25, rel=1e-6)

@@ -143,7 +143,9 @@ def test_candidates_by_name_profile_stribeck_and_validate():
     cands = candidate_set()
     assert {c.name for c in cands} == {"payload", "delay", "motor_lag", "gravity",
                                        "root_compliance", "stribeck", "torque_offset",
-                                       "strain_gauge_gain"}
+                                       *(f"sensor_{k}:{c}" for k in ("gain", "offset")
+                                         for c in ("joint_angle", "tip_acceleration",
+                                                   "root_strain"))}
     stribeck = next(c for c in cands if c.name == "stribeck")
     assert len(stribeck.effects) == len(Stribeck.grid()) and stribeck.label(0).startswith("v_s=")
     assert len(candidate_set([Stribeck(v_s=0.2)])[0].effects) == 1

@@ -30,6 +30,7 @@ from jaxflex.effects.gravity import GRAVITY
 from jaxflex.modal import free_hub_modes
 from jaxflex.model import Model
 from jaxflex.parameters import ParameterSpec, reference_parameters
+from jaxflex.sensors import calibrated
 from jaxflex.signals import reference_input
 from jaxflex.simulation import OUTPUT_NAMES, simulate, simulate_batch, simulate_core
 
@@ -39,10 +40,14 @@ NAMES = (
     "motor_lag",
     "payload",
     "root_compliance",
-    "strain_gauge_gain",
+    "sensor_gain",
+    "sensor_offset",
     "stribeck",
     "torque_offset",
 )
+CHANNEL_EFFECTS = tuple(f"{k}:{c}" for k in ("sensor_gain", "sensor_offset")
+                        for c in ("joint_angle", "tip_acceleration", "root_strain"))
+LIBRARY = NAMES[:5] + CHANNEL_EFFECTS + NAMES[7:]
 TESTBED = Model().testbed
 DT = TESTBED.dt
 
@@ -72,11 +77,12 @@ def _assert_same_outputs(a, b, rtol):
 # --- registry ---------------------------------------------------------------------------------
 def test_registry_holds_the_six_effects_with_documented_parameters():
     assert tuple(sorted(EFFECTS)) == NAMES
-    assert [e.name for e in library()] == list(NAMES)
+    assert [e.name for e in library()] == list(LIBRARY)
     for cls in EFFECTS.values():
         assert cls.description and cls.signature, cls.name
         for spec in cls.parameters:
-            assert spec.null == 0.0 and spec.lower <= spec.reference <= spec.upper, spec.name
+            null = 1.0 if cls.name == "sensor_gain" else 0.0  # a gain vanishes at 1
+            assert spec.null == null and spec.lower <= spec.reference <= spec.upper, spec.name
     assert [s.name for s in Payload().parameters] == ["m_p"]
     assert [s.name for s in Payload(rotary=True).parameters] == ["m_p", "J_p"]
     assert isinstance(get_effect("payload", rotary=True), Payload)
@@ -106,22 +112,26 @@ def test_every_hook_is_the_identity_at_the_null(effect):
             model.friction(params, velocity),
             model.load_amplitudes(params, jnp.asarray(0.7), jnp.asarray(0.2)),
             model.input_torque(params, torque, 5e-4),
+            model.readings(params, {"joint_angle": torque, "root_strain": -torque}),
         )
 
     params = _with(model)
-    structure, friction, amplitudes, applied = hooks(model, params)
-    base_structure, base_friction, _, _ = hooks(Model(), reference_parameters())
+    structure, friction, amplitudes, applied, read = hooks(model, params)
+    base_structure, base_friction, _, _, _ = hooks(Model(), reference_parameters())
     for field in ("mass", "stiffness", "first_moment", "tip", "root_curvature"):
         assert np.array_equal(getattr(structure, field), getattr(base_structure, field)), field
     assert np.array_equal(friction, base_friction)
     assert amplitudes.shape == (len(effect.loads(structure, params)),)
     assert np.all(amplitudes == 0.0)
     assert np.array_equal(applied, torque)
+    assert np.array_equal(read["joint_angle"], torque)
+    assert np.array_equal(read["root_strain"], -torque)
 
 
 def test_all_six_at_their_nulls_simulate_exactly_the_base_model(pulse, base_outputs):
     model = Model().with_effects(*library())
-    _assert_same_outputs(simulate(model, _with(model), pulse), base_outputs, rtol=1e-12)
+    out = calibrated(model, _with(model), simulate(model, _with(model), pulse))
+    _assert_same_outputs(out, base_outputs, rtol=1e-12)
 
 
 def test_composed_effects_vmap_and_reduce_to_the_base_row(pulse, base_outputs):
@@ -374,13 +384,18 @@ def test_gradients_at_the_null_are_finite_nonzero_and_match_finite_differences()
     @eqx.filter_jit
     @jax.value_and_grad
     def loss(effect_params):
-        return _loss(simulate_core(model, {**base, **effect_params}, torque, DT))
+        params = {**base, **effect_params}
+        return _loss(calibrated(model, params, simulate_core(model, params, torque, DT)))
 
     value, grads = loss(nulls)
-    assert set(grads) == {"d", "phi", "T_m", "m_p", "J_p", "c_r", "e_sg", "delta_tau_s", "tau_0"}
+    calibrations = {f"{k}_{c}" for k in ("gain", "offset")
+                    for c in ("joint_angle", "tip_acceleration", "root_strain")}
+    assert set(grads) == {"d", "phi", "T_m", "m_p", "J_p", "c_r", "delta_tau_s", "tau_0",
+                          *calibrations}
     for name, grad in grads.items():
         step = 1e-3 * model.space[name].lower
-        difference = (loss({**nulls, name: jnp.asarray(step, dtype=jnp.float64)})[0] - value) / step
+        moved = jnp.asarray(nulls[name] + step, dtype=jnp.float64)
+        difference = (loss({**nulls, name: moved})[0] - value) / step
         assert np.isfinite(grad) and abs(grad) > 0, name
         assert float(grad) == pytest.approx(float(difference), rel=0.02), name
 

@@ -2,7 +2,9 @@
 
 Every module of this package (other than the private ones) defines effects; importing the
 package collects each :class:`Effect` subclass with its own ``name`` into :data:`EFFECTS`, so a
-new effect is one new file here and nothing else.
+new effect is one new file here and nothing else. Effects on one output channel (a sensor's gain
+or offset, :mod:`jaxflex.effects._channel`) are named with their channel:
+``get_effect("sensor_gain:root_strain")``.
 """
 
 from __future__ import annotations
@@ -12,12 +14,14 @@ import inspect
 import pkgutil
 
 from jaxflex.effects._base import Effect, Structure, joint_friction
+from jaxflex.effects._channel import CALIBRATED_CHANNELS, ChannelEffect
 from jaxflex.effects.delay import Delay
 from jaxflex.effects.gravity import Gravity
 from jaxflex.effects.motor_lag import MotorLag
 from jaxflex.effects.payload import Payload
 from jaxflex.effects.root_compliance import RootCompliance
-from jaxflex.effects.sensor_gain import StrainGaugeGain
+from jaxflex.effects.sensor_gain import SensorGain
+from jaxflex.effects.sensor_offset import SensorOffset
 from jaxflex.effects.stribeck import Stribeck
 from jaxflex.effects.torque_offset import TorqueOffset
 
@@ -45,15 +49,32 @@ EFFECTS: dict[str, type[Effect]] = _collect()
 
 
 def get_effect(name: str, **kwargs) -> Effect:
-    """An effect by name, built with ``kwargs`` (e.g. ``get_effect("payload", rotary=True)``)."""
-    if name not in EFFECTS:
+    """An effect by name, built with ``kwargs`` (e.g. ``get_effect("payload", rotary=True)``);
+    ``KEY:CHANNEL`` names a channel effect's channel (``get_effect("sensor_gain:root_strain")``)."""
+    key, sep, channel = name.partition(":")
+    if key not in EFFECTS:
         raise ValueError(f"unknown effect {name!r}; known effects: {sorted(EFFECTS)}")
-    return EFFECTS[name](**kwargs)
+    cls = EFFECTS[key]
+    if sep:
+        if not issubclass(cls, ChannelEffect):
+            raise ValueError(f"effect {key!r} acts on no channel: name it {key!r}, not {name!r}")
+        if kwargs.setdefault("channel", channel) != channel:
+            raise ValueError(f"effect {name!r} given another channel, {kwargs['channel']!r}")
+    return cls(**kwargs)
 
 
 def library() -> tuple[Effect, ...]:
-    """One default instance of every effect in the library (in name order)."""
-    return tuple(cls() for _, cls in sorted(EFFECTS.items()))
+    """One default instance of every effect in the library (in name order); a channel effect
+    once for each of :data:`~jaxflex.effects._channel.CALIBRATED_CHANNELS`."""
+    return tuple(
+        effect
+        for _, cls in sorted(EFFECTS.items())
+        for effect in (
+            [cls(channel=c) for c in CALIBRATED_CHANNELS]
+            if issubclass(cls, ChannelEffect)
+            else [cls()]
+        )
+    )
 
 
 __all__ = [
@@ -64,7 +85,8 @@ __all__ = [
     "MotorLag",
     "Payload",
     "RootCompliance",
-    "StrainGaugeGain",
+    "SensorGain",
+    "SensorOffset",
     "Stribeck",
     "Structure",
     "TorqueOffset",

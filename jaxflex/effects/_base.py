@@ -7,7 +7,9 @@ An effect is a small :class:`equinox.Module` that declares its parameters (with 
 * :meth:`Effect.friction` — add a joint torque opposing the joint velocity (Stribeck friction);
 * :meth:`Effect.loads` — add position-dependent generalised forces ``Σ_i a_i(θ, θ') · f_i``
   with constant shapes ``f_i`` (gravity in a tilted plane);
-* :meth:`Effect.input_torque` — transform the applied torque signal (a delay, a motor lag).
+* :meth:`Effect.input_torque` — transform the applied torque signal (a delay, a motor lag);
+* :meth:`Effect.readings` — act on the named output channels after the solve (a sensor's gain
+  or offset): the motion is untouched, only what is read changes.
 
 At the null values every hook must return its input unchanged (or add exactly zero), so the model
 with the effect *is* the base model there and score tests can differentiate at that point.
@@ -15,6 +17,7 @@ with the effect *is* the base model there and score tests can differentiate at t
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from typing import ClassVar
 
 import equinox as eqx
@@ -71,6 +74,13 @@ class Effect(eqx.Module):
     def input_torque(self, params: Params, torque: Float[Array, " m"], h: float) -> Array:
         """Torque reaching the joint from the applied torque on a grid of step ``h``."""
         return torque
+
+    def readings(
+        self, params: Params, readings: Mapping[str, Float[Array, "*batch n"]]
+    ) -> dict[str, Float[Array, "*batch n"]]:
+        """Output channels after the solve, by name (the simulator's output names, e.g.
+        ``root_strain``); the default leaves them unchanged."""
+        return dict(readings)
 
 
 def joint_friction(params: Params, velocity: Array, omega_s: float) -> Array:

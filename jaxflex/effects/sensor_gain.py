@@ -1,52 +1,69 @@
-"""A root strain gauge whose calibration is off by a factor: a sensor gain to identify."""
+"""A sensor whose gain is not the one the arm file states: a calibration factor to identify."""
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from typing import ClassVar
 
 import equinox as eqx
+from jaxtyping import Array
 
-from jaxflex.effects._base import Effect, Structure
+from jaxflex.effects._channel import ChannelEffect
 from jaxflex.parameters import ParameterSpec, Params
 
 
-class StrainGaugeGain(Effect):
-    """Scales the root strain the model outputs: ``root_strain ← (1 + e_sg) · root_strain``.
+class SensorGain(ChannelEffect):
+    """Scales one output channel: ``y ← (gain_<channel> / reference) · y``.
 
-    A gauge's reading is ``gain·strain``; its gain comes from a calibration (gauge factor,
-    bridge and amplifier gains, or a vendor's factor to a deflection angle) and from where the
-    gauge sits (the strain falls off linearly from the clamp), both often known to ±20 %.
-    ``1 + e_sg`` is the ratio of the true gain to the one assumed (``e_sg`` its relative error,
-    of either sign). The simulator reads the root
-    strain through the row ``root_curvature`` of the structure, which nothing else uses, so
-    scaling that row scales this output alone and leaves the motion untouched.
+    A sensor's gain comes from a calibration (a gauge factor and bridge gain, an accelerometer's
+    sensitivity, a vendor's factor to a deflection angle, an encoder's counts) and, for a link
+    sensor, from where it sits; it is often known to ±20 %, or not at all. The records are read
+    with the gain ``reference`` (1: the arm file's own), so the parameter ``gain_<channel>`` is
+    the true gain in the same units and the effect vanishes at ``reference``. The motion is
+    untouched; only the reading is scaled. The sign is free when ``lower`` is not positive (a
+    sensor mounted the other way round).
     """
 
-    name: ClassVar[str] = "strain_gauge_gain"
-    parameters: ClassVar[tuple[ParameterSpec, ...]] = (
-        ParameterSpec(
-            "e_sg",
-            "1",
-            lower=-0.5,
-            upper=1.0,
-            reference=0.0,
-            description="relative error of the root strain gauge's assumed gain",
-            log_scale=False,
-            null=0.0,
-        ),
-    )
+    reference: float = eqx.field(static=True, default=1.0)
+    lower: float = eqx.field(static=True, default=0.5)
+    upper: float = eqx.field(static=True, default=2.0)
+
+    key: ClassVar[str] = "sensor_gain"
     description: ClassVar[str] = (
-        "The root strain gauge reads a fixed multiple of the true strain: its calibration "
-        "factor, or its distance from the clamp, is not what the arm file says. The arm moves "
-        "as before; only the reading is scaled."
+        "A sensor reads a fixed multiple of the quantity the model gives for it: its "
+        "calibration factor (gauge factor, sensitivity, vendor's conversion), or its position "
+        "on the link, is not what the arm file says. The arm moves as before; only that "
+        "channel's reading is scaled."
     )
     signature: ClassVar[str] = (
-        "root-strain residual proportional to the root strain itself (same shape and phase, "
-        "every frequency alike) while the joint-angle residual shows nothing; frequencies "
+        "one channel's residual proportional to that channel itself (same shape and phase, "
+        "every frequency alike), every other channel's residual unchanged; frequencies "
         "unchanged"
     )
 
-    def structure(self, structure: Structure, params: Params) -> Structure:
-        return eqx.tree_at(
-            lambda s: s.root_curvature, structure, (1.0 + params["e_sg"]) * structure.root_curvature
+    def __check_init__(self) -> None:
+        super().__check_init__()
+        if self.reference == 0 or not self.lower <= self.reference <= self.upper:
+            raise ValueError(
+                f"{self.name}: reference gain {self.reference!r} must be non-zero and lie in "
+                f"[{self.lower!r}, {self.upper!r}]"
+            )
+
+    def spec(self) -> ParameterSpec:
+        return ParameterSpec(
+            f"gain_{self.channel}",
+            "1",
+            lower=self.lower,
+            upper=self.upper,
+            reference=self.reference,
+            description=f"gain of the {self.channel} sensor, in units of the gain it was read with",
+            log_scale=self.lower > 0,
+            null=self.reference,
         )
+
+    def readings(self, params: Params, readings: Mapping[str, Array]) -> dict[str, Array]:
+        out = dict(readings)
+        if self.channel in out:
+            ratio = params[f"gain_{self.channel}"] / self.reference
+            out[self.channel] = out[self.channel] * ratio
+        return out

@@ -1,0 +1,78 @@
+"""Effects on one output channel after the solve: a sensor's calibration (gain, offset).
+
+A rig's sensor reads ``gain · quantity + offset``; when the gain or offset the arm file states
+is not the true one, the arm moves as before and only the reading changes. Such an effect is
+built for one channel (``SensorGain(channel="root_strain")``, or by name
+``get_effect("sensor_gain:root_strain")``), carries that channel in its name and its parameter's
+name, and acts through the :meth:`~jaxflex.effects.Effect.readings` hook alone.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import ClassVar
+
+import equinox as eqx
+
+from jaxflex.effects._base import Effect
+from jaxflex.parameters import ParameterSpec
+
+CHANNEL_UNITS: dict[str, str] = {
+    "joint_angle": "rad",
+    "tip_acceleration": "m/s^2",
+    "joint_velocity": "rad/s",
+    "tip_deflection": "m",
+    "root_strain": "1",
+    "joint_torque": "N m",
+}
+"""Unit of each simulator output channel (:data:`jaxflex.simulation.OUTPUT_NAMES`)."""
+
+CALIBRATED_CHANNELS: tuple[str, ...] = ("joint_angle", "tip_acceleration", "root_strain")
+"""The channels rigs log (encoder, accelerometer, strain gauge): the library holds one channel
+effect for each."""
+
+
+class _Name:
+    """``name``: the registry key on the class, ``key:channel`` on an instance."""
+
+    def __get__(self, instance: ChannelEffect | None, owner: type[ChannelEffect]) -> str:
+        return owner.key if instance is None else f"{owner.key}:{instance.channel}"
+
+
+class _Parameters:
+    """``parameters``: the instance's one spec (on the class, a default instance's)."""
+
+    def __get__(self, instance: ChannelEffect | None, owner: type[ChannelEffect]):
+        return ((owner() if instance is None else instance).spec(),)
+
+
+class ChannelEffect(Effect):
+    """Base of the effects that act on one output ``channel`` after the solve."""
+
+    channel: str = eqx.field(static=True, default="root_strain")
+
+    key: ClassVar[str] = "channel_effect"
+    name = _Name()  # type: ignore[assignment]
+    parameters = _Parameters()  # type: ignore[assignment]
+
+    def __check_init__(self) -> None:
+        if self.channel not in CHANNEL_UNITS:
+            raise ValueError(
+                f"{self.key}: channel {self.channel!r} is not an output the model fits; "
+                f"outputs: {list(CHANNEL_UNITS)}"
+            )
+        for field in ("reference", "lower", "upper"):
+            value = getattr(self, field, 0.0)
+            if isinstance(value, bool) or not (
+                isinstance(value, (int, float)) and math.isfinite(value)
+            ):
+                raise ValueError(f"{self.name}: {field}={value!r} must be a finite number")
+
+    @property
+    def unit(self) -> str:
+        """The channel's unit."""
+        return CHANNEL_UNITS[self.channel]
+
+    def spec(self) -> ParameterSpec:
+        """The effect's one parameter."""
+        raise NotImplementedError

@@ -1,0 +1,68 @@
+"""A constant offset on one sensor channel: a bias the arm file does not remove."""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from typing import ClassVar
+
+import equinox as eqx
+from jaxtyping import Array
+
+from jaxflex.effects._channel import ChannelEffect
+from jaxflex.parameters import ParameterSpec, Params
+
+DEFAULT_BOUNDS: dict[str, float] = {
+    "joint_angle": 0.05,
+    "tip_acceleration": 0.5,
+    "joint_velocity": 0.1,
+    "tip_deflection": 0.005,
+    "root_strain": 1e-4,
+    "joint_torque": 0.05,
+}
+"""Default ``±bound`` of each channel's offset, in its unit (rad, m/s², rad/s, m, 1, N m)."""
+
+
+class SensorOffset(ChannelEffect):
+    """Adds a constant to one output channel: ``y ← y + offset_<channel>`` (either sign).
+
+    A record read through an arm file is re-zeroed at rest (:mod:`jaxflex.measured`), which
+    removes any constant offset there; this effect is for records that keep their zero (an
+    accelerometer's bias, an encoder zeroed at another pose, a bridge's drift).
+    """
+
+    bound: float = eqx.field(static=True, default=0.0)  # 0: the channel's DEFAULT_BOUNDS
+
+    key: ClassVar[str] = "sensor_offset"
+    description: ClassVar[str] = (
+        "A sensor reads a constant besides the quantity the model gives for it: an amplifier "
+        "or bridge bias, an accelerometer's zero-g offset, an encoder zeroed at another pose. "
+        "The arm moves as before; only that channel's reading is shifted."
+    )
+    signature: ClassVar[str] = (
+        "one channel's residual a constant for the whole record, at rest as in motion, every "
+        "other channel's residual unchanged; unlike a torque offset it does not drift"
+    )
+
+    def __check_init__(self) -> None:
+        super().__check_init__()
+        if not (isinstance(self.bound, (int, float)) and self.bound >= 0):
+            raise ValueError(f"{self.name}: bound={self.bound!r} must be a number >= 0")
+
+    def spec(self) -> ParameterSpec:
+        bound = self.bound or DEFAULT_BOUNDS[self.channel]
+        return ParameterSpec(
+            f"offset_{self.channel}",
+            self.unit,
+            lower=-bound,
+            upper=bound,
+            reference=0.2 * bound,
+            description=f"constant offset of the {self.channel} sensor",
+            log_scale=False,
+            null=0.0,
+        )
+
+    def readings(self, params: Params, readings: Mapping[str, Array]) -> dict[str, Array]:
+        out = dict(readings)
+        if self.channel in out:
+            out[self.channel] = out[self.channel] + params[f"offset_{self.channel}"]
+        return out
