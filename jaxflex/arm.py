@@ -32,6 +32,12 @@ An arm file is TOML (read with the standard library's :mod:`tomllib`)::
     x = 0.0                   # m from the clamp
     calibration = "deflection_angle"
     channel = "deflection_angle"
+    gain = { reference = 1.0, lower = 0.5, upper = 2.0 }   # identified (a number: fixed)
+
+A sensor's ``gain`` given as a table of ``reference``, ``lower`` and ``upper`` is identified: the
+records are read with the reference gain and the arm's model holds a ``sensor_gain`` effect on
+the output the sensor is fitted as (:mod:`jaxflex.effects.sensor_gain`). An ``offset`` is always
+fixed: records are re-zeroed at rest (:mod:`jaxflex.measured`), which removes any constant.
 
 Any error (unknown key, missing value, wrong type, bounds that exclude the reference value) is
 an :class:`ArmError` whose one-line message names the file and the key.
@@ -49,7 +55,7 @@ from dataclasses import dataclass, field
 from typing import Any
 
 from jaxflex.drives import DRIVES, Drive, TorqueDrive
-from jaxflex.effects import Effect, get_effect
+from jaxflex.effects import Effect, SensorGain, get_effect
 from jaxflex.model import Model
 from jaxflex.parameters import BASE_PARAMETERS, ParameterSpace, ParameterSpec, Params
 from jaxflex.sensors import SENSORS, Sensor, stations
@@ -66,8 +72,10 @@ class ArmError(ValueError):
 class Arm:
     """One rig: link and settings (a :class:`Testbed`), base-parameter specs, drive, sensors.
 
-    ``fixed`` names base parameters held at their reference value when identifying. The
-    defaults are exactly the reference testbed, so ``Arm().model()`` is ``Model()``.
+    ``fixed`` names base parameters held at their reference value when identifying;
+    ``identified_gains`` holds ``(channel, lower, upper)`` for each sensor whose gain is
+    identified (its ``gain`` the reference). The defaults are exactly the reference testbed, so
+    ``Arm().model()`` is ``Model()``.
     """
 
     testbed: Testbed = field(default_factory=Testbed)
@@ -76,6 +84,7 @@ class Arm:
     drive: Drive = field(default_factory=TorqueDrive)
     sensors: tuple[Sensor, ...] = ()
     effects: tuple[str, ...] = ()
+    identified_gains: tuple[tuple[str, float, float], ...] = ()
     n_substeps: int = 2
     name: str = "arm"
     description: str = ""
@@ -97,6 +106,11 @@ class Arm:
                     f"arm {self.name!r}: sensor {s.channel} at x = {s.position!r} m lies beyond "
                     f"the link (length {self.testbed.length!r} m)"
                 )
+        for channel, lower, upper in self.identified_gains:
+            if channel not in channels:
+                raise ArmError(f"arm {self.name!r}: identified gain of {channel!r}, a channel "
+                               f"no sensor logs; channels: {channels}")
+            self.calibration(channel, lower, upper)  # checks it
         for spec in self.parameters:
             if not spec.lower <= spec.reference <= spec.upper:
                 raise ArmError(
@@ -104,13 +118,32 @@ class Arm:
                     f"{spec.upper!r}] exclude the reference value {spec.reference!r}"
                 )
 
+    def calibration(self, channel: str, lower: float, upper: float) -> SensorGain:
+        """The ``sensor_gain`` effect that identifies the gain of the sensor logging ``channel``
+        within ``[lower, upper]``, on the output the sensor is fitted as."""
+        sensor = self.sensor(channel)
+        mapping = sensor.simulated_output(Model(self.testbed))
+        if mapping is None:
+            raise ArmError(
+                f"arm {self.name!r}: sensor {channel} ({sensor.kind} at x = {sensor.position!r} "
+                "m) has no standard output, so its gain cannot be identified"
+            )
+        try:
+            return SensorGain(channel=mapping[0], reference=sensor.gain, lower=lower, upper=upper)
+        except ValueError as err:
+            raise ArmError(f"arm {self.name!r}: sensor {channel}: {err}") from None
+
     def model(self, *effects: Effect) -> Model:
-        """The :class:`Model` of this arm (a station at each link sensor), with its own effects
-        and any ``effects`` given."""
-        own = tuple(get_effect(name) for name in self.effects)
+        """The :class:`Model` of this arm (a station at each link sensor), with its own effects,
+        its identified sensor gains and any ``effects`` given (an own effect that ``effects``
+        names again is taken once, as given there: a fit's model holds the arm's own)."""
+        own = tuple(get_effect(name) for name in self.effects) + tuple(
+            self.calibration(*gain) for gain in self.identified_gains
+        )
+        given = {e.name for e in effects}
         return Model(
             self.testbed,
-            own + effects,
+            tuple(e for e in own if e.name not in given) + effects,
             self.n_substeps,
             self.parameters,
             self.drive,
@@ -191,7 +224,7 @@ def arm_from_dict(data: Mapping[str, Any], where: str = "arm") -> Arm:
     )
     specs, fixed = _parameters(top.table("parameters"))
     drive = _drive(top.table("drive"))
-    sensors = _sensors(top, length)
+    sensors, gains = _sensors(top, length)
     effects = top.strings("effects", ())
     for i, name in enumerate(effects):
         try:
@@ -205,6 +238,7 @@ def arm_from_dict(data: Mapping[str, Any], where: str = "arm") -> Arm:
         drive=drive,
         sensors=sensors,
         effects=effects,
+        identified_gains=gains,
         n_substeps=n_substeps,
         name=top.string("name"),
         description=top.string("description", ""),
@@ -234,24 +268,11 @@ def _parameters(table: _Table) -> tuple[tuple[ParameterSpec, ...], tuple[str, ..
     specs, fixed = [], []
     for name, base in _BASE.items():
         entry = table.table(name)
-        reference = entry.number("reference")
         is_fixed = entry.boolean("fixed", False)
-        if is_fixed:  # bounds are not searched; keep the library's, widened to the value
-            lower = entry.number("lower", min(base.lower, reference))
-            upper = entry.number("upper", max(base.upper, reference))
-        else:
-            lower, upper = entry.number("lower"), entry.number("upper")
+        # a fixed parameter's bounds are not searched: the library's, widened to the value
+        reference, lower, upper = _bounded(entry, widen=(base.lower, base.upper) if is_fixed
+                                           else None)
         log_scale = entry.boolean("log_scale", base.log_scale)
-        if not lower < upper:
-            raise ArmError(
-                f"{entry.where}: {entry.key('lower')}: lower bound {lower!r} must be below the "
-                f"upper bound {upper!r}"
-            )
-        if not lower <= reference <= upper:
-            raise ArmError(
-                f"{entry.where}: {entry.prefix[:-1]}: bounds [{lower!r}, {upper!r}] exclude the "
-                f"reference value {reference!r}"
-            )
         entry.done()
         specs.append(
             dataclasses.replace(
@@ -262,6 +283,30 @@ def _parameters(table: _Table) -> tuple[tuple[ParameterSpec, ...], tuple[str, ..
             fixed.append(name)
     table.done()
     return tuple(specs), tuple(fixed)
+
+
+def _bounded(
+    entry: _Table, *, widen: tuple[float, float] | None = None, signed: bool = False
+) -> tuple[float, float, float]:
+    """``(reference, lower, upper)`` of a table of them; missing bounds default to ``widen``
+    widened to the reference (else they are required); ``signed`` allows values <= 0."""
+    minimum = -math.inf if signed else None
+    reference = entry.number("reference", minimum=minimum)
+    lower, upper = (min(widen[0], reference), max(widen[1], reference)) if widen else (
+        _MISSING, _MISSING)
+    lower = entry.number("lower", lower, minimum=minimum)
+    upper = entry.number("upper", upper, minimum=minimum)
+    if not lower < upper:
+        raise ArmError(
+            f"{entry.where}: {entry.key('lower')}: lower bound {lower!r} must be below the "
+            f"upper bound {upper!r}"
+        )
+    if not lower <= reference <= upper:
+        raise ArmError(
+            f"{entry.where}: {entry.prefix[:-1]}: bounds [{lower!r}, {upper!r}] exclude the "
+            f"reference value {reference!r}"
+        )
+    return reference, lower, upper
 
 
 def _drive(table: _Table) -> Drive:
@@ -277,12 +322,15 @@ def _drive(table: _Table) -> Drive:
     return cls(**settings)
 
 
-def _sensors(top: _Table, length: float) -> tuple[Sensor, ...]:
-    """The ``[[sensors]]`` tables: ``type`` picks the class, the other keys are its fields."""
+def _sensors(
+    top: _Table, length: float
+) -> tuple[tuple[Sensor, ...], tuple[tuple[str, float, float], ...]]:
+    """The ``[[sensors]]`` tables: ``type`` picks the class, the other keys are its fields; and
+    ``(channel, lower, upper)`` of each gain given as a table (identified)."""
     entries = top._get("sensors", [])
     if not isinstance(entries, list):
         raise top._wrong("sensors", "an array of tables ([[sensors]])", entries)
-    sensors = []
+    sensors, gains = [], []
     for i, entry in enumerate(entries):
         table = _Table(entry, top.where, f"sensors[{i}].")
         kind = table.string("type")
@@ -292,8 +340,18 @@ def _sensors(top: _Table, length: float) -> tuple[Sensor, ...]:
                 f"{sorted(SENSORS)}"
             )
         values: dict[str, Any] = {}
+        bounds = None
+        if isinstance(table.data.get("gain"), Mapping):
+            gain = table.table("gain")
+            values["gain"], *bounds = _bounded(gain, signed=True)
+            gain.done()
+        if isinstance(table.data.get("offset"), Mapping):
+            raise ArmError(
+                f"{table.where}: {table.key('offset')}: an offset cannot be identified (records "
+                "are re-zeroed at rest, which removes it); give a number"
+            )
         for f in dataclasses.fields(SENSORS[kind]):
-            if f.name not in table.data:
+            if f.name not in table.data or f.name in values:
                 continue
             if isinstance(f.default, str):
                 values[f.name] = table.string(f.name)
@@ -317,7 +375,9 @@ def _sensors(top: _Table, length: float) -> tuple[Sensor, ...]:
             sensors.append(SENSORS[kind](**values))
         except ValueError as err:
             raise ArmError(f"{table.where}: sensors[{i}]: {err}") from None
-    return tuple(sensors)
+        if bounds is not None:
+            gains.append((sensors[-1].channel, *bounds))
+    return tuple(sensors), tuple(gains)
 
 
 _MISSING: Any = object()

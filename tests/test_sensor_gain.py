@@ -1,14 +1,18 @@
-"""Effect strain_gauge_gain: a mis-calibrated root strain gauge, and only its reading, scaled."""
+"""Effect sensor_gain: one channel's reading, and only it, scaled by a calibration factor."""
 
 import equinox as eqx
 import numpy as np
 import pytest
 from test_arm import ARMS
 
-from jaxflex.arm import load_arm
-from jaxflex.effects import StrainGaugeGain, get_effect
+from jaxflex import Model, reference_parameters, simulate
+from jaxflex.arm import ArmError, arm_from_dict, load_arm
+from jaxflex.effects import SensorGain, get_effect
 from jaxflex.measured import logged_record, model_record
-from jaxflex.simulation import OUTPUT_NAMES, simulate
+from jaxflex.objective import build_objective
+from jaxflex.sensors import calibrated, readings
+from jaxflex.signals import reference_input
+from jaxflex.simulation import OUTPUT_NAMES
 
 ROTFLEX = load_arm(ARMS / "quanser_rotflex.toml")
 PARAMS = {**ROTFLEX.reference_parameters()}
@@ -22,37 +26,45 @@ def volts():
 
 
 @pytest.fixture(scope="module")
-def base(volts):
-    return simulate(ROTFLEX.model(), PARAMS, volts[1], DT)
+def pulse_outputs():
+    return simulate(Model(), reference_parameters(), reference_input("pulse", duration=0.5)[1])
 
 
-def _with_gain(volts, ratio):
-    """The arm with a gauge reading ``ratio`` times what its arm file says."""
-    error = ratio - 1.0
-    return simulate(ROTFLEX.model(StrainGaugeGain()), PARAMS | {"e_sg": error}, volts[1], DT)
+def test_names_carry_the_channel_and_bad_channels_are_named():
+    gain = get_effect("sensor_gain:tip_acceleration")
+    assert gain == SensorGain(channel="tip_acceleration")
+    assert gain.name == "sensor_gain:tip_acceleration" and SensorGain.name == "sensor_gain"
+    (spec,) = gain.parameters
+    assert (spec.name, spec.null, spec.lower, spec.upper) == (
+        "gain_tip_acceleration", 1.0, 0.5, 2.0)
+    with pytest.raises(ValueError, match="sensor_gain: channel 'deflection_angle' is not an "
+                                         "output the model fits; outputs: \\['joint_angle'"):
+        get_effect("sensor_gain:deflection_angle")
+    with pytest.raises(ValueError, match="effect 'payload' acts on no channel"):
+        get_effect("payload:joint_angle")
+    with pytest.raises(ValueError, match="reference gain 3.0 must be non-zero and lie in"):
+        SensorGain(reference=3.0)
 
 
-def test_at_its_null_the_model_is_the_base_model(volts, base):
-    assert get_effect("strain_gauge_gain").parameters[0].null == 0.0
-    out = _with_gain(volts, 1.0)
+@pytest.mark.parametrize("channel", OUTPUT_NAMES)
+def test_it_scales_exactly_its_channel_and_leaves_every_other_bit_identical(
+    channel, pulse_outputs
+):
+    model = Model().with_effects(SensorGain(channel=channel))
+    base = {**reference_parameters()}
+    at_null = calibrated(model, base | {f"gain_{channel}": 1.0}, pulse_outputs)
+    scaled = calibrated(model, base | {f"gain_{channel}": 1.25}, pulse_outputs)
     for name in OUTPUT_NAMES:
-        np.testing.assert_array_equal(out.channel(name), base.channel(name), err_msg=name)
+        y = np.asarray(pulse_outputs.channel(name))
+        np.testing.assert_array_equal(at_null.channel(name), y, err_msg=name)
+        expected = 1.25 * y if name == channel else y  # one rounding: the product itself
+        np.testing.assert_array_equal(scaled.channel(name), expected, err_msg=name)
+    assert np.ptp(np.asarray(pulse_outputs.channel(channel))) > 0
 
 
-def test_it_scales_the_root_strain_and_leaves_the_motion(volts, base):
-    out = _with_gain(volts, 1.25)
-    strain = np.asarray(base.root_strain)
-    assert np.ptp(strain) > 0
-    np.testing.assert_allclose(out.root_strain, 1.25 * strain, rtol=0,
-                               atol=1e-12 * np.abs(strain).max())
-    for name in OUTPUT_NAMES:
-        if name != "root_strain":
-            np.testing.assert_array_equal(out.channel(name), base.channel(name), err_msg=name)
-
-
-def test_it_explains_a_gauge_calibrated_wrong_in_the_arm_file(volts):
+def test_a_gauge_calibrated_wrong_in_the_arm_file_is_explained_by_its_gain(volts):
     """A log from a gauge of gain g, read with an arm file that says g/1.25: the record seen by
-    the model is the strain times 1.25, which e_sg = 0.25 reproduces and the null does not."""
+    the model is the strain times 1.25, which gain_root_strain = 1.25 reproduces exactly."""
     time, signal = volts
     log = logged_record(ROTFLEX, PARAMS, time, signal)
     gauge = ROTFLEX.sensor("deflection_angle")
@@ -61,10 +73,81 @@ def test_it_explains_a_gauge_calibrated_wrong_in_the_arm_file(volts):
         for s in ROTFLEX.sensors
     ))
     seen = model_record(told, log)
+    model = ROTFLEX.model(get_effect("sensor_gain:root_strain"))
+    out = simulate(model, PARAMS | {"gain_root_strain": 1.25}, seen.torque, DT)
+    with_gain = calibrated(model, PARAMS | {"gain_root_strain": 1.25}, out)
     scale = np.abs(seen.channel("root_strain")).max()
-    with_gain = _with_gain(volts, 1.25)
     np.testing.assert_allclose(seen.channel("root_strain"), with_gain.root_strain, rtol=0,
                                atol=1e-9 * scale)
     np.testing.assert_array_equal(seen.joint_angle, np.asarray(with_gain.joint_angle))
-    error = np.abs(seen.channel("root_strain") - np.asarray(_with_gain(volts, 1.0).root_strain))
+    error = np.abs(seen.channel("root_strain") - np.asarray(out.root_strain))
     assert error.max() > 0.19 * scale  # the assumed calibration is 20 % of the reading off
+
+
+def _rig(gain) -> dict:
+    """A small steel strip with an encoder and a tip accelerometer of ``gain``."""
+    reference = {n: {"reference": s.reference, "lower": s.lower, "upper": s.upper}
+                 for n, s in ((s.name, s) for s in Model().base)}
+    return {
+        "name": "rig",
+        "link": {"length": 0.5, "width": 0.025, "thickness": 0.002, "density": 2700.0},
+        "parameters": reference,
+        "drive": {"type": "torque"},
+        "sensors": [{"type": "encoder"},
+                    {"type": "accelerometer", "x": 0.5, "channel": "acc", "gain": gain}],
+    }
+
+
+def test_an_arm_file_gain_table_identifies_the_gain_through_the_fit():
+    """A rig logs its accelerometer with gain 1.6 V/(m/s²); the arm file says 'gain between
+    0.5 and 2, reference 1': the objective's residuals vanish at gain_tip_acceleration = 1.6
+    (to round-off of the batched solve) and not at the reference."""
+    true = arm_from_dict(_rig(1.6))
+    torque = np.concatenate([np.zeros(100), reference_input("pulse", duration=0.5)[1]])
+    time = 1e-3 * np.arange(torque.size)  # at rest for 0.1 s first
+    log = logged_record(true, reference_parameters(), time, torque)
+    arm = arm_from_dict(_rig({"reference": 1.0, "lower": 0.5, "upper": 2.0}))
+    assert arm.identified_gains == (("acc", 0.5, 2.0),) and arm.sensor("acc").gain == 1.0
+    model = arm.model()
+    assert model.effect_names == ("sensor_gain:tip_acceleration",)
+    assert model.space["gain_tip_acceleration"].null == 1.0
+    objective = build_objective([model_record(arm, log)], model,
+                                channels=("joint_angle", "tip_acceleration"))
+    right = objective.residuals(reference_parameters() | {"gain_tip_acceleration": 1.6})
+    wrong = objective.residuals(reference_parameters() | {"gain_tip_acceleration": 1.0})
+    assert np.abs(right).max() < 1e-7 * np.abs(wrong).max()  # round-off: vmap, stops
+    # readings through the arm at gain 1.6 are the 1.6-gain rig's log (one rounding each)
+    at_true = reference_parameters() | {"gain_tip_acceleration": 1.6}
+    at = readings(arm.sensors, model, simulate(model, at_true, torque), params=at_true)
+    np.testing.assert_allclose(at["acc"], log.channel("acc"), rtol=0,
+                               atol=1e-14 * np.abs(log.channel("acc")).max())
+    # the fit's model holds the arm's gain effect; the arm does not add it twice
+    assert arm.model(*model.effects).effect_names == model.effect_names
+
+
+@pytest.mark.parametrize(
+    ("gain", "message"),
+    [
+        ({"reference": 1.0, "lower": 2.0, "upper": 0.5},
+         "sensors[1].gain.lower: lower bound 2.0 must be below the upper bound 0.5"),
+        ({"reference": 3.0, "lower": 0.5, "upper": 2.0},
+         "sensors[1].gain: bounds [0.5, 2.0] exclude the reference value 3.0"),
+        ({"reference": 1.0, "lower": 0.5}, "sensors[1].gain.upper: missing value"),
+        ({"reference": 1.0, "lower": 0.5, "upper": 2.0, "fixed": True},
+         "sensors[1].gain.fixed: unknown key"),
+        ({"reference": 0.0, "lower": -1.0, "upper": 1.0}, "gain must be non-zero"),
+    ],
+)
+def test_gain_table_errors_are_one_line_naming_the_key(gain, message):
+    with pytest.raises(ArmError) as info:
+        arm_from_dict(_rig(gain), "rig.toml")
+    assert str(info.value).startswith("rig.toml: ") and message in str(info.value)
+    assert "\n" not in str(info.value)
+
+
+def test_an_offset_table_is_refused_with_the_reason():
+    data = _rig(1.0)
+    data["sensors"][1]["offset"] = {"reference": 0.0, "lower": -1.0, "upper": 1.0}
+    with pytest.raises(ArmError, match=r"^rig.toml: sensors\[1\].offset: an offset cannot be "
+                                       r"identified \(records are re-zeroed at rest"):
+        arm_from_dict(data, "rig.toml")
