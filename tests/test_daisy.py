@@ -1,0 +1,67 @@
+"""DaISy 96-009: an acceleration-only record with unknown scales, fitted as far as it allows.
+
+The sweep is in periodic steady state, so the record fitted holds the input twice (the model
+starts from rest; its start-up transient falls in the first period) and the score is taken on
+the second period. Arm file: ``arms/daisy_robot_arm.toml`` (its assumptions are stated there).
+"""
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+from test_datasets import REAL_DATA_DIR, _or_skip
+
+from jaxflex import datasets, identify
+from jaxflex.arm import load_arm
+from jaxflex.data import Record
+from jaxflex.metrics import nrmse
+from jaxflex.sensors import calibrated
+from jaxflex.simulation import simulate
+
+ARM = load_arm(Path(__file__).parent.parent / "arms" / "daisy_robot_arm.toml")
+FITTED = {  # identify(generations=15, population=24, seed=0) on the 2-core test machine
+    "E": 6541430354.652036, "J_h": 0.12719477161918677, "b_v": 7.276024132458721e-06,
+    "tau_c": 0.09996694522137112, "alpha": 1.3311693526877817, "beta": 3.1555149491009096e-06,
+    "gain_tip_acceleration": -0.27274067352500486,
+}
+MEASURED_NRMSE = 70.0  # percent, second period, at FITTED
+
+
+@pytest.fixture(scope="module")
+def sweep():
+    return _or_skip(datasets.load, "daisy_robot_arm", REAL_DATA_DIR)["sweep"]
+
+
+def _periodic(sweep) -> Record:
+    """The sweep's input twice over and the acceleration twice over, at the arm's assumed dt."""
+    u, y = sweep.torque, sweep.channel("acceleration")
+    time = ARM.testbed.dt * np.arange(2 * u.size)
+    return Record(time=time, torque=np.tile(u, 2), tip_acceleration=np.tile(y, 2), name="sweep")
+
+
+def _score(model, params, record) -> float:
+    """NRMSE (percent) of the second period, the one in steady state."""
+    n = record.n_samples // 2
+    out = calibrated(model, params, simulate(model, params, record.torque, record.dt))
+    return nrmse(record.tip_acceleration[n:], np.asarray(out.tip_acceleration)[n:])
+
+
+def test_the_arm_fits_acceleration_only_with_its_gain_identified(sweep):
+    model = ARM.model()
+    assert model.effect_names == ("sensor_gain:tip_acceleration",)
+    assert [s.channel for s in ARM.sensors] == ["acceleration"]
+    record = _periodic(sweep)
+    assert _score(model, FITTED, record) < MEASURED_NRMSE + 1.0
+    # the gain is only a scale: any other value scores worse (the sign included)
+    worse = FITTED | {"gain_tip_acceleration": 0.5 * FITTED["gain_tip_acceleration"]}
+    assert _score(model, worse, record) > MEASURED_NRMSE + 5.0
+
+
+@pytest.mark.slow  # about 100 s on the 2-core machine: DE 15 x 24 and refinement
+def test_a_small_budget_fit_beats_the_measured_nrmse(sweep):
+    model = ARM.model()
+    record = _periodic(sweep)
+    fit = identify([record], model, channels=("tip_acceleration",), generations=15,
+                   population=24, seed=0)
+    assert _score(model, fit.params, record) < MEASURED_NRMSE + 1.0
+    assert fit.params["gain_tip_acceleration"] < 0  # the logged torque is the ground's reaction
