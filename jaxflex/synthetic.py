@@ -22,6 +22,7 @@ from jaxtyping import ArrayLike
 from jaxflex.data import Dataset, Record
 from jaxflex.model import Model
 from jaxflex.parameters import Params
+from jaxflex.sensors import calibrated
 from jaxflex.signals import reference_input
 from jaxflex.simulation import OUTPUT_NAMES, simulate
 
@@ -141,8 +142,9 @@ def simulated_record(
     metadata: Mapping[str, str] | None = None,
 ) -> Record:
     """A noise-free :class:`Record` of ``model`` at ``params`` driven by ``torque``; ``extras``
-    names further simulated outputs stored as extra columns."""
-    out = simulate(model, params, torque, dt)
+    names further simulated outputs stored as extra columns; the model's effects on the
+    readings (a sensor gain or offset) act on every column."""
+    out = calibrated(model, params, simulate(model, params, torque, dt))
     return Record(
         time=time,
         torque=torque,
