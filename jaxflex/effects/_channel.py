@@ -59,7 +59,9 @@ class ChannelEffect(Effect):
         if self.channel not in CHANNEL_UNITS:
             raise ValueError(
                 f"{self.key}: channel {self.channel!r} is not an output the model fits; "
-                f"outputs: {list(CHANNEL_UNITS)}"
+                f"outputs: {list(CHANNEL_UNITS)} (a sensor of an arm file is fitted as one "
+                "of them: a root strain gauge as root_strain, a tip accelerometer as "
+                "tip_acceleration)"
             )
         for field in ("reference", "lower", "upper"):
             value = getattr(self, field, 0.0)
