@@ -12,7 +12,7 @@ import numpy as np
 from numpy.typing import ArrayLike
 
 from jaxflex.data import Record
-from jaxflex.diagnosis.noise import CHANNELS, NoiseLevel, excess_misfit, root_mean_square
+from jaxflex.diagnosis.noise import NoiseLevel, excess_misfit, root_mean_square
 from jaxflex.preprocess import differentiate
 
 
@@ -110,7 +110,7 @@ def localise(
     else:
         velocities = [velocity] if isinstance(record, Record) else list(velocity)
         velocities = [np.asarray(v, dtype=np.float64) for v in velocities]
-    channels = [c for c in CHANNELS if c in residuals[0]]
+    channels = list(residuals[0])
     for i, (rec, res, vel) in enumerate(zip(records, residuals, velocities, strict=True)):
         for c in channels:
             if np.shape(res[c]) != (rec.n_samples,):
