@@ -133,7 +133,7 @@ def _offset_log(folder, tau_0: float):
     return path, start
 
 
-@pytest.mark.slow  # about 50 s on a busy 2-core machine: compiling the discovery Jacobian
+# about 12 s with the compilation cache warm (50 s cold) on a busy 2-core machine
 def test_discover_names_a_torque_offset_on_encoder_and_strain_gauge(tmp_path, capsys):
     """Voltage drive, encoder and root strain gauge (no accelerometer): discover fits the two
     channels the arm's sensors give, with their quantisation as noise model, and names the
