@@ -322,7 +322,8 @@ def discover(
         else:
             note = "every candidate is in the model already"
         if withdrawn:
-            note += (f" ({', '.join(withdrawn)} reduced the misfit but left most of it; "
+            held = " and did not lower the held-out error" if holdout is not None else ""
+            note += (f" ({', '.join(withdrawn)} reduced the misfit but left most of it{held}; "
                      "withdrawn)")
         unexplained["message"] = f"{unexplained['message']}; {note}"
     return DiscoveryReport(

@@ -194,7 +194,9 @@ class DiscoveryReport:
                     for r in s.ranking[:3])
                 lines.append(f"after '{s.structure}': top candidates {top}")
         if self.withdrawn:
-            lines.append(f"withdrawn (did not explain the misfit): {', '.join(self.withdrawn)}")
+            held = " nor lower the held-out error" if self.holdout is not None else ""
+            lines.append(f"withdrawn (did not explain the misfit{held}): "
+                         f"{', '.join(self.withdrawn)}")
         if self.unexplained:
             lines.append(f"UNEXPLAINED: {self.unexplained['message']}")
         else:
