@@ -15,6 +15,7 @@ from jaxflex.cli import UsageError
 from jaxflex.cli._arm import (
     _speaking_cli,
     add_arm_arguments,
+    arm_fit_keywords,
     arm_of,
     load_rig_records,
     model_records,
@@ -106,7 +107,7 @@ def run(args: argparse.Namespace) -> int:
     if found is not None:
         arm, _ = found
         model = arm.model(*model.effects)
-        keywords["fixed"] = arm.fixed_values | (keywords.get("fixed") or {}) or None
+        keywords = arm_fit_keywords(args, discover, arm, records[0])
         keywords["channels"] = arm_channels(arm, [*records, *(holdout or ())])
         keywords["noise"] = arm_noise(arm, records[0], keywords["channels"]) | (
             keywords.get("noise") or {})
