@@ -32,7 +32,7 @@ from jaxflex.discovery.report import Confirmation, DiscoveryFit, DiscoveryReport
 from jaxflex.discovery.scores import ALPHA, ScoreResult
 from jaxflex.effects import Effect
 from jaxflex.model import Model
-from jaxflex.objective import as_dataset, check_weights
+from jaxflex.objective import as_dataset, check_channels, check_weights
 from jaxflex.simulation import Outputs
 
 MIN_EXPLAINED = 0.9
@@ -99,7 +99,7 @@ def _rigid(records: Dataset, model: Model, channels: Sequence[str]):
 
 
 def _rigid_step(engine: Engine, estimate, records: Dataset, holdout: Dataset | None,
-                alpha: float, t_end: float | None) -> Step:
+                alpha: float, channels: Sequence[str], t_end: float | None) -> Step:
     """The first rung of the ladder: the rigid-body model (no link flexibility)."""
     from jaxflex.rigid import rigid_simulate
 
@@ -108,7 +108,6 @@ def _rigid_step(engine: Engine, estimate, records: Dataset, holdout: Dataset | N
     held = None
     if holdout is not None:
         held = [rigid_simulate(estimate, r.torque, r.dt, length=length) for r in holdout]
-    channels = tuple(engine.weights)
     nrmse, frf, held = _metrics(records, preds, holdout, held, channels, t_end)
     params = {"J_tot": estimate.J_tot, "b_v": estimate.b_v, "tau_c": estimate.tau_c}
     fit = DiscoveryFit(model=None, params=params, cost=engine.prediction_cost(preds),
@@ -165,14 +164,8 @@ def _initial_params(records: Dataset, model: Model, initial: Any, budget: tuple[
 
 def _channels(records: Dataset, channels: Sequence[str]) -> tuple[str, ...]:
     """``channels`` validated: distinct simulator outputs that every record measures."""
-    from jaxflex.simulation import OUTPUT_NAMES
-
-    channels = (channels,) if isinstance(channels, str) else tuple(channels)
-    if not channels or len(set(channels)) != len(channels):
-        raise ValueError(f"channels must name distinct outputs, got {channels}")
+    channels = check_channels(channels)
     for c in channels:
-        if c not in OUTPUT_NAMES:
-            raise ValueError(f"channel {c!r} is not a simulated output; outputs: {OUTPUT_NAMES}")
         for r in records:
             if c not in r.columns:
                 raise ValueError(f"record {r.name!r} has no {c!r} column to fit; its columns "
@@ -269,7 +262,7 @@ def discover(
     active: list[int] = []
     steps: list[Step] = []
     if rigid is not None:
-        steps.append(_rigid_step(engine, rigid, records, holdout, alpha, t_end))
+        steps.append(_rigid_step(engine, rigid, records, holdout, alpha, channels, t_end))
     added: dict[str, Any] = {}
     for _ in Progress(range(max_steps + 1), label="discover", enabled=progress):
         preds = engine.predictions(x, records)
