@@ -247,9 +247,9 @@ def _window_bounds(name: str) -> list[float]:
 def _prediction_channels(prediction: Any, n: int, name: str,
                          channels: Sequence[str]) -> dict[str, np.ndarray]:
     """``channels`` of a prediction (an ``Outputs``, a ``Record`` or a mapping), and its joint
-    velocity where it has one."""
+    angle and velocity where it has them."""
     out = {}
-    for c in (*channels, "joint_velocity"):
+    for c in dict.fromkeys((*channels, "joint_angle", "joint_velocity")):
         if isinstance(prediction, Mapping):
             value = prediction.get(c)
         elif isinstance(prediction, Record):
@@ -284,11 +284,11 @@ def diagnose(
     ``tip_acceleration``; an arm's sensors give others, e.g. ``root_strain``).
 
     A prediction is an :class:`~jaxflex.simulation.Outputs`, a :class:`Record` or a mapping
-    with every channel (``joint_velocity`` is used for localisation when present). ``noise``
-    gives channels' levels (a :class:`NoiseLevel` or a white σ); the others are estimated by
-    :func:`estimate_noise`. ``alpha`` is the level of the whiteness test. The FRF comparison
-    uses the first of :data:`~jaxflex.diagnosis.frf.LINK_OUTPUTS` among the channels (none
-    without a link channel).
+    with every channel (its ``joint_angle`` and ``joint_velocity`` localise the misfit where
+    present). ``noise`` gives channels' levels (a :class:`NoiseLevel` or a white σ); the others
+    are estimated by :func:`estimate_noise`. ``alpha`` is the level of the whiteness test. The
+    FRF comparison uses the first of :data:`~jaxflex.diagnosis.frf.LINK_OUTPUTS` among the
+    channels (none without a link channel).
     """
     records = list(records)
     predictions = list(predictions)
@@ -337,9 +337,13 @@ def diagnose(
             beyond_quantisation=beyond,
         )
     velocities = [p.get("joint_velocity") for p in preds]
+    # a record without an encoder is localised along the model's joint angle
+    angles = [r.joint_angle if r.joint_angle is not None else p.get("joint_angle")
+              for r, p in zip(records, preds, strict=True)]
     localisation = localise(
         records, residuals, noise=levels,
         velocity=None if any(v is None for v in velocities) else velocities,
+        angle=None if any(a is None for a in angles) else angles,
     )
     link = next((c for c in LINK_OUTPUTS if c in outputs), None)
     try:
