@@ -34,6 +34,7 @@ from jaxtyping import ArrayLike, Bool, Complex, Float
 
 from jaxflex._io import provenance, to_jsonable
 from jaxflex.data import OUTPUT_COLUMNS, Dataset, Record
+from jaxflex.diagnosis.frf import LINK_OUTPUTS
 from jaxflex.metrics import frf_nrmse, h1_frf, nrmse, relative_error, spectral_window
 from jaxflex.modal import free_hub_modes
 from jaxflex.model import Model
@@ -411,14 +412,17 @@ def compare_record(
     settings: FRFSettings,
     encoder_counts: int | None,
     accel_sigma: float | None,
+    outputs: Sequence[str] = OUTPUT_COLUMNS,
 ) -> RecordComparison:
     """The model's outputs ``out`` against one record in the role ``role`` (``"fit"`` or
-    ``"held-out"``): NRMSE and relative error per output over the first ``t_end`` seconds, the
-    FRFs under ``settings``, and the noise floor of the given sensor noise (``None``: unknown).
-    One row of :class:`Comparison`; discovery scores its steps with it too."""
+    ``"held-out"``): NRMSE and relative error per output (``outputs``, the ones the record
+    measures) over the first ``t_end`` seconds, the FRFs from the torque to the first link
+    output (:data:`~jaxflex.diagnosis.frf.LINK_OUTPUTS`) under ``settings``, and the noise floor
+    of the given sensor noise (``None``: unknown). One row of :class:`Comparison`; discovery
+    scores its steps with it too."""
     window = _time_window(record, t_end)
     errors, relative = {}, {}
-    for name in OUTPUT_COLUMNS:
+    for name in outputs:
         measured, simulated = record.channel(name)[window], np.asarray(out.channel(name))[window]
         if not np.any(measured):  # e.g. an input too weak to break the joint free
             warnings.warn(
@@ -431,7 +435,8 @@ def compare_record(
         errors[name] = nrmse(measured, simulated)
         relative[name] = relative_error(measured, simulated)
 
-    frf = _frf(record, np.asarray(out.tip_acceleration), settings)
+    link = next((c for c in LINK_OUTPUTS if c in outputs), outputs[0])
+    frf = _frf(record, np.asarray(out.channel(link)), settings, link)
     band = frf.band
     floor = noise_floor(record, encoder_counts, accel_sigma, t_end=t_end)
     if accel_sigma is not None and settings.single_segment and frf.compared.any():
@@ -452,12 +457,13 @@ def compare_record(
     )
 
 
-def _frf(record: Record, simulated_acc: np.ndarray, settings: FRFSettings) -> FRF:
-    """H1 FRFs of the measured and simulated tip acceleration, and the bins to compare."""
+def _frf(record: Record, simulated: np.ndarray, settings: FRFSettings,
+         output: str = "tip_acceleration") -> FRF:
+    """H1 FRFs torque → ``output``, measured and simulated, and the bins to compare."""
     kw = {"nperseg": settings.nperseg, "window": settings.window}
     fs = record.sample_rate
-    freqs, measured, coherence = h1_frf(record.torque, record.tip_acceleration, fs, **kw)
-    _, model, _ = h1_frf(record.torque, simulated_acc, fs, **kw)
+    freqs, measured, coherence = h1_frf(record.torque, record.channel(output), fs, **kw)
+    _, model, _ = h1_frf(record.torque, simulated, fs, **kw)
     band = (freqs > 0) & (freqs <= settings.f_max)
     compared = band & np.isfinite(measured) & np.isfinite(model)
     if settings.single_segment and settings.min_input_db is not None:

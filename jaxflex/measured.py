@@ -20,6 +20,7 @@ import numpy as np
 
 from jaxflex.arm import Arm
 from jaxflex.data import Record
+from jaxflex.diagnosis import NoiseLevel
 from jaxflex.effects import Effect
 from jaxflex.metrics import nrmse
 from jaxflex.sensors import calibrated, readings
@@ -104,6 +105,20 @@ def fit_channels(arm: Arm, record: Record) -> tuple[str, ...]:
     return tuple(output for _, output, _ in _channels(arm, record))
 
 
+def fit_noise(arm: Arm, record: Record) -> dict[str, NoiseLevel]:
+    """The noise model of each sensor in ``record``, in the units of the simulator output it is
+    fitted to (for ``discover``): white where the sensor has a noise level, else quantised at
+    its resolution; a sensor with neither is left out (its level is estimated)."""
+    levels = {}
+    for sensor, output, factor in _channels(arm, record):
+        scale = abs(sensor.gain * factor)
+        if sensor.noise > 0:
+            levels[output] = NoiseLevel(sigma=sensor.noise_std / scale)
+        elif sensor.resolution > 0:
+            levels[output] = NoiseLevel.quantised(sensor.resolution / scale)
+    return levels
+
+
 def validate(
     arm: Arm,
     params: Mapping[str, float],
@@ -161,4 +176,5 @@ def logged_record(
                   metadata={"arm": arm.name} | dict(metadata or {}))
 
 
-__all__ = ["REST_SPAN", "fit_channels", "logged_record", "model_record", "validate"]
+__all__ = ["REST_SPAN", "fit_channels", "fit_noise", "logged_record", "model_record",
+           "validate"]

@@ -167,6 +167,17 @@ class Objective(eqx.Module):
         return np.concatenate(records), np.concatenate(channels), np.concatenate(scales)
 
 
+def check_channels(channels: str | Sequence[str]) -> tuple[str, ...]:
+    """``channels`` as a tuple of distinct simulator outputs (one-line error naming the bad one)."""
+    channels = (channels,) if isinstance(channels, str) else tuple(channels)
+    if not channels or len(set(channels)) != len(channels):
+        raise ValueError(f"channels must name distinct outputs, got {channels}")
+    for c in channels:
+        if c not in OUTPUT_NAMES:
+            raise ValueError(f"channel {c!r} is not a simulated output; outputs: {OUTPUT_NAMES}")
+    return channels
+
+
 def check_weights(weights: Mapping[str, float] | None, channels: Sequence[str]) -> tuple:
     """The weight of each of ``channels`` (default 1), validated: one line naming the channel."""
     weights = {} if weights is None else dict(weights)
@@ -269,12 +280,7 @@ def build_objective(
     if not isinstance(model, Model):
         raise TypeError(f"model must be a jaxflex Model, got {type(model).__name__}")
     dataset = as_dataset(records)
-    channels = (channels,) if isinstance(channels, str) else tuple(channels)
-    if not channels or len(set(channels)) != len(channels):
-        raise ValueError(f"channels must name distinct outputs, got {channels}")
-    for c in channels:
-        if c not in OUTPUT_NAMES:
-            raise ValueError(f"channel {c!r} is not a simulated output; outputs: {OUTPUT_NAMES}")
+    channels = check_channels(channels)
     if noise is not None:
         if weights is not None:
             raise ValueError("give channel weights or noise levels, not both")
@@ -328,5 +334,5 @@ def build_objective(
     )
 
 
-__all__ = ["DEFAULT_CHANNELS", "Objective", "as_dataset", "build_objective", "check_weights",
-           "free_specs", "noise_weights"]
+__all__ = ["DEFAULT_CHANNELS", "Objective", "as_dataset", "build_objective", "check_channels",
+           "check_weights", "free_specs", "noise_weights"]

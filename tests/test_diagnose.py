@@ -276,6 +276,43 @@ def test_wrong_stiffness_is_located_in_frequency(model, truth):
     assert json_ready["channels"]["tip_acceleration"]["consistent"] is False
 
 
+def test_a_strain_gauge_rig_is_diagnosed_on_its_own_channels(model, truth):
+    """No accelerometer: the residuals, noise levels and the FRF (torque → root strain) are
+    those of the channels measured, and a stiffer model shows in the strain's resonances."""
+    records = make_records(model, truth, seed=11, extras=("root_strain",))
+    wrong = dict(truth) | {"E": truth["E"] * 1.08}
+    d = diagnose(records, predictions(model, wrong, records),
+                 noise={"root_strain": 1e-7}, channels=("joint_angle", "root_strain"))
+    assert list(d.channels) == ["joint_angle", "root_strain"]
+    assert d.channels["root_strain"].noise.source == "given"
+    assert d.frf.output == "root_strain" and d.to_dict()["frf"]["output"] == "root_strain"
+    f_true = float(free_hub_modes(model.structure(truth)).frequencies_hz[0])
+    first = min(d.frf.resonances, key=lambda r: abs(r.measured_hz - f_true))
+    assert first.shift_hz == pytest.approx(f_true * (math.sqrt(1.08) - 1), rel=0.35)
+    assert not d.channels["root_strain"].consistent()
+    assert set(d.unexplained()["nrmse"]) <= {"joint_angle", "root_strain"}
+    with pytest.raises(ValueError, match="noise given for unknown channel 'tip_acceleration'"):
+        diagnose(records, predictions(model, truth, records), channels=("root_strain",),
+                 noise={"tip_acceleration": 0.05})
+
+
+def test_a_record_without_an_encoder_is_localised_along_the_model_angle(model, truth):
+    """Acceleration only (no joint angle logged): the misfit is still placed in angle ranges,
+    those of the model's joint angle."""
+    full = make_records(model, truth, seed=3)
+    bare = [Record(r.time, r.torque, None, r.tip_acceleration, name=r.name) for r in full]
+    wrong = dict(truth) | {"J_h": truth["J_h"] * 1.2}
+    preds = predictions(model, wrong, bare)
+    d = diagnose(bare, preds, channels=("tip_acceleration",))
+    assert list(d.channels) == ["tip_acceleration"] and d.frf.output == "tip_acceleration"
+    angle = np.concatenate([np.asarray(p.joint_angle) for p in preds])
+    edges = np.degrees(np.linspace(angle.min(), angle.max(), 5))
+    names = [c.condition for c in d.localisation.conditions if c.condition.startswith("angle")]
+    assert names == [f"angle {a:.0f} to {b:.0f} deg"
+                     for a, b in zip(edges[:-1], edges[1:], strict=True)]
+    assert not d.consistent_with_noise
+
+
 def test_frf_error_is_zero_for_identical_predictions(model, truth):
     records = make_records(model, truth, noise=False)
     frf = frf_error(records, [r.to_dict() for r in records])

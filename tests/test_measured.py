@@ -1,5 +1,8 @@
 """Records as they come: the drive's input column, sensor channels, windows and rest."""
 
+import dataclasses
+import math
+
 import numpy as np
 import pytest
 import scipy.linalg
@@ -9,7 +12,7 @@ from test_datasets import REAL_DATA_DIR
 from jaxflex import datasets, get_effect, identify, simulate
 from jaxflex.arm import load_arm
 from jaxflex.data import Record
-from jaxflex.measured import fit_channels, model_record, validate
+from jaxflex.measured import fit_channels, fit_noise, model_record, validate
 from jaxflex.sensors import readings
 
 ROTFLEX = load_arm(ARMS / "quanser_rotflex.toml")
@@ -49,6 +52,24 @@ def test_a_logged_record_becomes_what_the_simulator_outputs():
     error = ready.channel("root_strain") - np.asarray(truth["outputs"].root_strain)
     assert np.max(np.abs(error)) <= (gauge.resolution / 2) / factor * (1 + 1e-9)
     assert "deflection_angle -> root_strain" in ready.metadata["sensors"]
+
+
+def test_sensor_noise_models_in_the_units_of_the_fitted_outputs():
+    """The encoder's count and the gauge's quantum (a deflection angle, read as root strain
+    through ``α = L/3 · w'' = (2L/3h) · ε`` at the clamp) become quantised noise levels."""
+    record, _ = _logged()
+    levels = fit_noise(ROTFLEX, record)
+    assert levels["joint_angle"].kind == "quantised"
+    assert levels["joint_angle"].step == 2 * np.pi / 4096
+    tb = ROTFLEX.testbed
+    assert levels["root_strain"].step == pytest.approx(6.4e-5 * 3 * tb.thickness / (2 * tb.length),
+                                                       rel=1e-12)
+    noisy = dataclasses.replace(ROTFLEX, sensors=(
+        ROTFLEX.sensors[0], dataclasses.replace(ROTFLEX.sensors[1], noise=1e-4)))
+    white = fit_noise(noisy, record)["root_strain"]
+    assert white.kind == "white"
+    assert white.sigma == pytest.approx(math.hypot(1e-4, 6.4e-5 / math.sqrt(12)) * 3
+                                        * tb.thickness / (2 * tb.length), rel=1e-12)
 
 
 def test_validate_scores_every_sensor_channel_over_the_whole_record():

@@ -83,4 +83,5 @@ def test_real_rig_notebook(monkeypatch, tmp_path):
     run = run_notebook("real_rig", monkeypatch, tmp_path)
     assert "square_wave" in run.text and "random_985" in run.text and "tau_0 = " in run.text
     assert "black box, order" in run.text
-    assert run.images >= 2  # the two runs, the held-out comparison
+    assert "added: torque_offset" in run.text  # discover's first effect on the rig
+    assert run.images >= 3  # the two runs, the held-out comparison, discover's error falling

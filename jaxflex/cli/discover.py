@@ -13,7 +13,9 @@ import argparse
 
 from jaxflex.cli import UsageError
 from jaxflex.cli._arm import (
+    _speaking_cli,
     add_arm_arguments,
+    arm_fit_keywords,
     arm_of,
     load_rig_records,
     model_records,
@@ -105,8 +107,13 @@ def run(args: argparse.Namespace) -> int:
     if found is not None:
         arm, _ = found
         model = arm.model(*model.effects)
-        records = discovered_records(arm, records, window)
-        holdout = None if holdout is None else discovered_records(arm, holdout, window)
+        keywords = arm_fit_keywords(args, discover, arm, records[0])
+        keywords["channels"] = arm_channels(arm, [*records, *(holdout or ())])
+        keywords["noise"] = arm_noise(arm, records[0], keywords["channels"]) | (
+            keywords.get("noise") or {})
+        keywords["t_end"] = None  # the whole record (or --window), as validate scores it
+        records = model_records(arm, records, window)
+        holdout = None if holdout is None else model_records(arm, holdout, window)
     report = discover(
         records, holdout=holdout, model=model, candidates=candidates,
         max_steps=args.max_steps, alpha=args.alpha, seed=args.seed, progress=args.progress,
@@ -132,18 +139,23 @@ def run(args: argparse.Namespace) -> int:
     return 0
 
 
-def discovered_records(arm, records, window):
-    """Records as the rig logged them, mapped onto the arm's model; ``discover`` tests its
-    candidates on the reference outputs, so every record must give all of them."""
-    from jaxflex.data import OUTPUT_COLUMNS
+def arm_noise(arm, record, channels) -> dict:
+    """The noise levels of the arm's sensors on the fitted channels (``--noise`` overrides)."""
+    from jaxflex.measured import fit_noise
 
-    ready = model_records(arm, records, window)
-    for r in ready:
-        missing = [c for c in OUTPUT_COLUMNS if c not in r.columns]
-        if missing:
-            raise UsageError(
-                f"record {r.name!r}: discover fits {', '.join(OUTPUT_COLUMNS)}, but arm "
-                f"{arm.name!r}'s sensors give it {r.metadata['sensors']}, without {missing}; "
-                "fit it with `jaxflex identify --arm` and score it with `jaxflex validate`"
-            )
-    return ready
+    return {c: v for c, v in fit_noise(arm, record).items() if c in channels}
+
+
+def arm_channels(arm, records) -> tuple[str, ...]:
+    """The simulator outputs the arm's sensors give in every record: discover fits those."""
+    from jaxflex.measured import fit_channels
+
+    per_record = [set(_speaking_cli(fit_channels, arm, r)) for r in records]
+    common = tuple(c for c in _speaking_cli(fit_channels, arm, records[0])
+                   if all(c in p for p in per_record))
+    if not common:
+        raise UsageError(
+            f"the records share none of arm {arm.name!r}'s sensor channels "
+            f"{[s.channel for s in arm.sensors]}: discover fits every record on the same ones"
+        )
+    return common

@@ -1,5 +1,6 @@
-"""Where in frequency, through the dynamics: the measured and the model's FRF (torque → tip
-acceleration) per band, and the shift of each resonance."""
+"""Where in frequency, through the dynamics: the measured and the model's FRF (torque → a link
+output: the tip acceleration, or a strain gauge or deflection sensor where the rig has no
+accelerometer) per band, and the shift of each resonance."""
 
 from __future__ import annotations
 
@@ -12,6 +13,10 @@ from numpy.typing import ArrayLike
 from scipy.signal import find_peaks
 
 from jaxflex.data import Record
+
+LINK_OUTPUTS: tuple[str, ...] = ("tip_acceleration", "root_strain", "tip_deflection")
+
+"""Outputs that see the link's vibration, in the order the FRF comparison prefers them."""
 
 
 @dataclass(frozen=True)
@@ -39,7 +44,7 @@ class BandError:
 
 @dataclass(frozen=True)
 class FrfComparison:
-    """Measured and model FRF torque → tip acceleration, their error per band and resonances."""
+    """Measured and model FRF torque → ``output``, their error per band and resonances."""
 
     freqs: np.ndarray
     measured: np.ndarray  # complex, NaN where the input has no power
@@ -48,6 +53,7 @@ class FrfComparison:
     nrmse: float  # percent over 0 < f ≤ f_max (the spec's FRF metric)
     bands: tuple[BandError, ...]
     resonances: tuple[ResonanceShift, ...]
+    output: str = "tip_acceleration"
 
 
 def _pooled_frf(torques, outputs, dt: float, pad: int):
@@ -101,22 +107,23 @@ def frf_error(
     f_peaks_max: float = 60.0,
     pad: int = 8,
     min_input_power: float = 1e-3,
+    output: str = "tip_acceleration",
 ) -> FrfComparison:
-    """Compare the FRF torque → tip acceleration of the records with that of the model.
+    """Compare the FRF torque → ``output`` of the records with that of the model.
 
     Both FRFs are estimated the same way (pooled zero-padded DFTs of the whole transients), so
     truncation affects them alike. Bins where the pooled input power is below
     ``min_input_power`` × its peak are NaN. Bands split ``(0, f_max]`` at the midpoints between
-    measured resonances; resonances are peaks of the tip-acceleration power spectrum up to
+    measured resonances; resonances are peaks of the output's power spectrum up to
     ``f_peaks_max``, each paired with the model's nearest peak.
     """
     dt = records[0].dt
     torques = [r.torque for r in records]
     freqs, h_meas, sxx, syy_meas = _pooled_frf(
-        torques, [r.tip_acceleration for r in records], dt, pad
+        torques, [r.channel(output) for r in records], dt, pad
     )
     _, h_model, _, syy_model = _pooled_frf(
-        torques, [np.asarray(p["tip_acceleration"], dtype=np.float64) for p in predictions],
+        torques, [np.asarray(p[output], dtype=np.float64) for p in predictions],
         dt, pad,
     )
     weak = sxx < min_input_power * sxx.max()
@@ -138,6 +145,7 @@ def frf_error(
     return FrfComparison(
         freqs=freqs, measured=h_meas, model=h_model, f_max=f_max,
         nrmse=total.nrmse if total else float("nan"), bands=bands, resonances=resonances,
+        output=output,
     )
 
 
@@ -169,6 +177,7 @@ def _band_error(freqs, h_meas, h_model, lo, hi) -> BandError | None:
 
 
 __all__ = [
+    "LINK_OUTPUTS",
     "ResonanceShift",
     "BandError",
     "FrfComparison",

@@ -12,7 +12,7 @@ import numpy as np
 from numpy.typing import ArrayLike
 
 from jaxflex.data import Record
-from jaxflex.diagnosis.noise import CHANNELS, NoiseLevel, excess_misfit, root_mean_square
+from jaxflex.diagnosis.noise import NoiseLevel, excess_misfit, root_mean_square
 from jaxflex.preprocess import differentiate
 
 
@@ -84,6 +84,7 @@ def localise(
     residual: Mapping[str, ArrayLike] | Sequence[Mapping[str, ArrayLike]],
     *,
     velocity: ArrayLike | Sequence[ArrayLike] | None = None,
+    angle: ArrayLike | Sequence[ArrayLike] | None = None,
     noise: Mapping[str, NoiseLevel] | None = None,
     v_zero: float = 0.05,
     reversal_s: float = 0.02,
@@ -93,24 +94,32 @@ def localise(
     """Where the misfit lies: shares by operating condition and by time window.
 
     ``residual`` maps channel → residual (one mapping per record). ``velocity`` is the joint
-    velocity (rad/s) per record, best the model's (smooth); by default it is the measured angle
-    differentiated through a 20 Hz low-pass. Conditions: torque on / free vibration,
-    near-zero velocity ``|θ'| < v_zero``, reversals (within ``reversal_s`` of a sign change of a
-    moving joint), high speed (``|θ'|`` above half its peak), ``n_angle_bins`` equal angle ranges
-    and ``n_windows`` equal time windows. The expected noise power ``σ²`` per sample (from
-    ``noise``) is subtracted before sharing (for a quantised channel: only the part beyond
-    ``±q/2`` counts), so a residual that is all noise shows no concentration.
+    velocity (rad/s) per record, best the model's (smooth); by default it is the angle
+    differentiated through a 20 Hz low-pass. ``angle`` is the joint angle per record (default:
+    the measured one; give the model's for records without an encoder). Conditions: torque
+    on / free vibration, near-zero velocity ``|θ'| < v_zero``, reversals (within
+    ``reversal_s`` of a sign change of a moving joint), high speed (``|θ'|`` above half its
+    peak), ``n_angle_bins`` equal angle ranges and ``n_windows`` equal time windows. The
+    expected noise power ``σ²`` per sample (from ``noise``) is subtracted before sharing (for a
+    quantised channel: only the part beyond ``±q/2`` counts), so a residual that is all noise
+    shows no concentration.
     """
     records = [record] if isinstance(record, Record) else list(record)
     residuals = [residual] if isinstance(residual, Mapping) else list(residual)
     if len(residuals) != len(records):
         raise ValueError(f"{len(records)} record(s) but {len(residuals)} residual set(s)")
+    if angle is None:
+        angles = [r.joint_angle for r in records]
+    else:
+        angles = [angle] if isinstance(record, Record) else list(angle)
+        angles = [np.asarray(a, dtype=np.float64) for a in angles]
     if velocity is None:
-        velocities = [differentiate(r.joint_angle, r.dt, 1, smooth_hz=20.0) for r in records]
+        velocities = [differentiate(a, r.dt, 1, smooth_hz=20.0)
+                      for a, r in zip(angles, records, strict=True)]
     else:
         velocities = [velocity] if isinstance(record, Record) else list(velocity)
         velocities = [np.asarray(v, dtype=np.float64) for v in velocities]
-    channels = [c for c in CHANNELS if c in residuals[0]]
+    channels = list(residuals[0])
     for i, (rec, res, vel) in enumerate(zip(records, residuals, velocities, strict=True)):
         for c in channels:
             if np.shape(res[c]) != (rec.n_samples,):
@@ -120,19 +129,19 @@ def localise(
                 )
         if vel.shape != (rec.n_samples,):
             raise ValueError(f"velocity {i} has shape {vel.shape}, expected ({rec.n_samples},)")
-    angle_all = np.concatenate([r.joint_angle for r in records])
+    angle_all = np.concatenate(angles)
     angle_edges = np.linspace(angle_all.min(), angle_all.max(), n_angle_bins + 1)
     duration = max(r.duration for r in records)
     window_edges = np.linspace(0.0, duration, n_windows + 1)
 
     masks: dict[str, list[np.ndarray]] = {}
-    for rec, vel in zip(records, velocities, strict=True):
+    for rec, vel, theta in zip(records, velocities, angles, strict=True):
         m = _masks(rec, vel, v_zero, n_angle_bins, reversal_s)
         for j in range(n_angle_bins):
             lo, hi = angle_edges[j], angle_edges[j + 1]
             name = f"angle {np.degrees(lo):.0f} to {np.degrees(hi):.0f} deg"
-            upper = rec.joint_angle <= hi if j == n_angle_bins - 1 else rec.joint_angle < hi
-            m[name] = (rec.joint_angle >= lo) & upper
+            upper = theta <= hi if j == n_angle_bins - 1 else theta < hi
+            m[name] = (theta >= lo) & upper
         t = rec.time - rec.time[0]
         for j in range(n_windows):
             lo, hi = window_edges[j], window_edges[j + 1]

@@ -11,14 +11,15 @@ from typing import Any
 import numpy as np
 from numpy.typing import ArrayLike
 
-from jaxflex.data import OUTPUT_COLUMNS, Record
+from jaxflex.data import KNOWN_UNITS, OUTPUT_COLUMNS, Record
 
 CHANNELS: tuple[str, ...] = OUTPUT_COLUMNS
 
-"""Output channels compared with measurements: joint angle (rad), tip acceleration (m/s²)."""
+"""Output channels compared with measurements by default: joint angle (rad), tip acceleration
+(m/s²); an arm's sensors give others (``channels=`` of :func:`estimate_noise`, ``diagnose``)."""
 
 
-UNITS: dict[str, str] = {"joint_angle": "rad", "tip_acceleration": "m/s^2"}
+UNITS: dict[str, str] = dict(KNOWN_UNITS)
 
 
 NOISE_SOURCES: tuple[str, ...] = ("given", "quantisation", "estimated", "floor")
@@ -252,13 +253,14 @@ def white_noise_level(residual: ArrayLike) -> float:
 
 
 def estimate_noise(records: Sequence[Record], residuals: Sequence[Mapping[str, np.ndarray]],
-                   given: Noise | None = None) -> dict[str, NoiseLevel]:
-    """Noise level per channel: ``given`` (:func:`noise_levels`) where the user gave one;
-    else quantised if every record's measurement lies on a grid (the finest step); else white,
-    estimated from the residuals but never below the measurements' :func:`resolution` (then
-    the level is that floor, flagged unsure)."""
-    levels = noise_levels(given)
-    for channel in CHANNELS:
+                   given: Noise | None = None,
+                   channels: Sequence[str] = CHANNELS) -> dict[str, NoiseLevel]:
+    """Noise level of each of ``channels``: ``given`` (:func:`noise_levels`) where the user gave
+    one; else quantised if every record's measurement lies on a grid (the finest step); else
+    white, estimated from the residuals but never below the measurements' :func:`resolution`
+    (then the level is that floor, flagged unsure)."""
+    levels = noise_levels(given, channels)
+    for channel in channels:
         if channel in levels:
             continue
         measured = [r.channel(channel) for r in records]

@@ -17,7 +17,7 @@ from jaxflex.diagnosis.correlation import (
     autocorrelation,
     cross_correlation,
 )
-from jaxflex.diagnosis.frf import FrfComparison, frf_error
+from jaxflex.diagnosis.frf import LINK_OUTPUTS, FrfComparison, frf_error
 from jaxflex.diagnosis.localise import Localisation, localise
 from jaxflex.diagnosis.noise import (
     CHANNELS,
@@ -165,7 +165,8 @@ class Diagnosis:
                 )
                 lines.append(f"  residual spectrum above noise at {peaks}")
         if self.frf is not None:
-            lines.append(f"FRF NRMSE (0-{self.frf.f_max:g} Hz): {self.frf.nrmse:.3g} %")
+            lines.append(f"FRF NRMSE (torque -> {self.frf.output}, 0-{self.frf.f_max:g} Hz): "
+                         f"{self.frf.nrmse:.3g} %")
             for r in self.frf.resonances:
                 if abs(r.shift_hz) >= 0.05:
                     lines.append(
@@ -216,6 +217,7 @@ class Diagnosis:
         frf = None
         if self.frf is not None:
             frf = {
+                "output": self.frf.output,
                 "nrmse": self.frf.nrmse,
                 "bands": [vars(b) for b in self.frf.bands],
                 "resonances": [
@@ -242,10 +244,12 @@ def _window_bounds(name: str) -> list[float]:
     return [float(lo), float(hi)]
 
 
-def _prediction_channels(prediction: Any, n: int, name: str) -> dict[str, np.ndarray]:
-    """Output channels of a prediction: an ``Outputs``, a ``Record`` or a mapping."""
+def _prediction_channels(prediction: Any, n: int, name: str,
+                         channels: Sequence[str]) -> dict[str, np.ndarray]:
+    """``channels`` of a prediction (an ``Outputs``, a ``Record`` or a mapping), and its joint
+    angle and velocity where it has them."""
     out = {}
-    for c in CHANNELS + ("joint_velocity",):
+    for c in dict.fromkeys((*channels, "joint_angle", "joint_velocity")):
         if isinstance(prediction, Mapping):
             value = prediction.get(c)
         elif isinstance(prediction, Record):
@@ -253,7 +257,7 @@ def _prediction_channels(prediction: Any, n: int, name: str) -> dict[str, np.nda
         else:
             value = getattr(prediction, c, None)
         if value is None:
-            if c in CHANNELS:
+            if c in channels:
                 raise ValueError(f"prediction for record {name!r} has no {c!r} output")
             continue
         a = np.asarray(value, dtype=np.float64)
@@ -273,13 +277,18 @@ def diagnose(
     alpha: float = 0.01,
     max_lag: int | None = None,
     f_max: float = 15.0,
+    channels: Sequence[str] = CHANNELS,
 ) -> Diagnosis:
-    """Run every diagnostic on the residuals of ``predictions`` (one per record).
+    """Run every diagnostic on the residuals of ``predictions`` (one per record) in
+    ``channels``, the outputs the records measure (default ``joint_angle`` and
+    ``tip_acceleration``; an arm's sensors give others, e.g. ``root_strain``).
 
-    A prediction is an :class:`~jaxflex.simulation.Outputs`, a :class:`Record` or a mapping with
-    ``joint_angle`` and ``tip_acceleration`` (``joint_velocity`` is used for localisation when
+    A prediction is an :class:`~jaxflex.simulation.Outputs`, a :class:`Record` or a mapping
+    with every channel (its ``joint_angle`` and ``joint_velocity`` localise the misfit where
     present). ``noise`` gives channels' levels (a :class:`NoiseLevel` or a white σ); the others
-    are estimated by :func:`estimate_noise`. ``alpha`` is the level of the whiteness test.
+    are estimated by :func:`estimate_noise`. ``alpha`` is the level of the whiteness test. The
+    FRF comparison uses the first of :data:`~jaxflex.diagnosis.frf.LINK_OUTPUTS` among the
+    channels (none without a link channel).
     """
     records = list(records)
     predictions = list(predictions)
@@ -289,16 +298,19 @@ def diagnose(
         raise ValueError(f"{len(records)} record(s) but {len(predictions)} prediction(s)")
     if not 0 < alpha < 1:
         raise ValueError(f"alpha={alpha!r} must lie in (0, 1)")
-    preds = [_prediction_channels(p, r.n_samples, r.name)
+    outputs = (channels,) if isinstance(channels, str) else tuple(channels)
+    if not outputs:
+        raise ValueError("diagnose needs at least one channel")
+    preds = [_prediction_channels(p, r.n_samples, r.name, outputs)
              for p, r in zip(predictions, records, strict=True)]
     residuals = tuple(
-        {c: r.channel(c) - p[c] for c in CHANNELS} for r, p in zip(records, preds, strict=True)
+        {c: r.channel(c) - p[c] for c in outputs} for r, p in zip(records, preds, strict=True)
     )
-    levels = estimate_noise(records, residuals, given=noise)
+    levels = estimate_noise(records, residuals, given=noise, channels=outputs)
     dt = records[0].dt
     channels = {}
     nrmse_per_record = {}
-    for c in CHANNELS:
+    for c in outputs:
         res = [r[c] for r in residuals]
         per_record = np.array([100.0 * root_mean_square(x) / root_mean_square(rec.channel(c))
                                for x, rec in zip(res, records, strict=True)])
@@ -325,12 +337,17 @@ def diagnose(
             beyond_quantisation=beyond,
         )
     velocities = [p.get("joint_velocity") for p in preds]
+    # a record without an encoder is localised along the model's joint angle
+    angles = [r.joint_angle if r.joint_angle is not None else p.get("joint_angle")
+              for r, p in zip(records, preds, strict=True)]
     localisation = localise(
         records, residuals, noise=levels,
         velocity=None if any(v is None for v in velocities) else velocities,
+        angle=None if any(a is None for a in angles) else angles,
     )
+    link = next((c for c in LINK_OUTPUTS if c in outputs), None)
     try:
-        frf = frf_error(records, preds, f_max=f_max)
+        frf = None if link is None else frf_error(records, preds, f_max=f_max, output=link)
     except ValueError:
         frf = None
     return Diagnosis(

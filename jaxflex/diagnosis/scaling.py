@@ -9,7 +9,7 @@ import numpy as np
 from numpy.typing import ArrayLike
 
 from jaxflex.data import Record
-from jaxflex.diagnosis.noise import CHANNELS, root_mean_square
+from jaxflex.diagnosis.noise import root_mean_square
 
 
 @dataclass(frozen=True)
@@ -32,7 +32,7 @@ def amplitude_scaling(
 ) -> AmplitudeScaling:
     """Residual RMS and NRMSE per record against the record's peak |torque|."""
     amplitudes = np.array([float(np.max(np.abs(r.torque))) for r in records])
-    channels = [c for c in CHANNELS if c in residuals[0]]
+    channels = list(residuals[0])
     rms = {c: np.array([root_mean_square(res[c]) for res in residuals]) for c in channels}
     nrmse = {
         c: np.array([100.0 * root_mean_square(res[c]) / root_mean_square(rec.channel(c))

@@ -49,9 +49,18 @@ The loop (:func:`discover`)
     parameters re-optimised to first order) is scanned instead. Ties are real: a delay and a
     first-order lag have the same derivative at their null; the refits tell them apart. Stop when
     no candidate is significant and confirmed. An effect is kept only if the final residuals
-    are consistent with the noise or it explained most (:data:`MIN_EXPLAINED`) of the misfit
-    above the noise when it was added; otherwise it is withdrawn, and whatever the residuals
-    still hold is reported as ``unexplained`` — where in time and frequency, and how large.
+    are consistent with the noise, or it explained most (:data:`MIN_EXPLAINED`) of the misfit
+    above the noise when it was added, or it lowered the error on held-out records (the mean
+    over the channels; a real rig always keeps some misfit no candidate explains); otherwise it is
+    withdrawn, and whatever the residuals still hold is reported as ``unexplained`` — where in
+    time and frequency, and how large.
+
+Channels
+    The records may measure any of the simulator's outputs (``channels=``, as in ``identify``;
+    an arm's sensors give them, :func:`jaxflex.measured.fit_channels`): an encoder and a root
+    strain gauge fit ``joint_angle`` and ``root_strain``. Residuals, noise levels, the
+    diagnosis (its FRF from the torque to the first link channel) and the report are per
+    channel; what the records do not measure is not fitted.
 """
 
 from jaxflex.discovery.candidates import Candidate, candidate_set

@@ -91,9 +91,11 @@ class Engine:
               params: Mapping[str, float], noise: Noise | None, *,
               bounds: Mapping[str, tuple[float, float]] | None = None,
               fixed: Mapping[str, float] | None = None,
-              weights: Mapping[str, float] | None = None) -> Engine:
-        """The engine testing ``candidates`` on ``model``; the channels' noise levels are the
-        given ones, the others estimated from the residuals of ``params``
+              weights: Mapping[str, float] | None = None,
+              channels: Sequence[str] = CHANNELS) -> Engine:
+        """The engine testing ``candidates`` on ``model`` over the records' ``channels`` (the
+        simulator outputs they measure); the channels' noise levels are the given ones, the
+        others estimated from the residuals of ``params``
         (:func:`jaxflex.diagnosis.estimate_noise`). ``bounds``, ``fixed`` and ``weights`` are
         :func:`jaxflex.identification.identify`'s (:meth:`Universe.build`); a channel's weight
         ``w`` divides its noise level by ``√w`` (it counts ``w`` times in every fit and test),
@@ -106,18 +108,19 @@ class Engine:
         names = [c.name for c in candidates]
         universe = cls.make_universe(model, candidates, bounds, fixed)
         pool = universe.candidates
-        levels = noise_levels(noise)
-        if any(c not in levels for c in CHANNELS):
+        channels = tuple(channels)
+        levels = noise_levels(noise, channels)
+        if any(c not in levels for c in channels):
             x = universe.vector(params)
             preds = simulate_all(universe, x, records)
-            residuals = [{c: r.channel(c) - np.asarray(p.channel(c)) for c in CHANNELS}
+            residuals = [{c: r.channel(c) - np.asarray(p.channel(c)) for c in channels}
                          for r, p in zip(records, preds, strict=True)]
-            levels = estimate_noise(records, residuals, given=levels)
+            levels = estimate_noise(records, residuals, given=levels, channels=channels)
         for c, level in levels.items():
             if not (math.isfinite(level.sigma) and level.sigma > 0):
                 raise ValueError(f"noise level of {c} must be positive, got {level.sigma!r}; "
                                  "give it with noise={...}")
-        objective = build_objective(records, universe.model, channels=CHANNELS, weights=weights,
+        objective = build_objective(records, universe.model, channels=channels, weights=weights,
                                     fixed=universe.fixed, bounds=universe.bounds)
         weights = dict(zip(objective.channels, map(float, objective.weights), strict=True))
         _, channel, _ = objective.layout()

@@ -50,8 +50,11 @@ def explain(result: ScoreResult, effect: Effect, diagnosis: Diagnosis | None,
             features.append(f"resonance measured at {s.measured_hz:.2f} Hz, model "
                             f"{s.model_hz:.2f} Hz")
         if "input_torque" in hooks:
-            xc = diagnosis.channels["joint_angle"].input_correlation
-            features.append(f"angle residual correlates with the torque "
+            channel = ("joint_angle" if "joint_angle" in diagnosis.channels
+                       else next(iter(diagnosis.channels)))
+            xc = diagnosis.channels[channel].input_correlation
+            label = "angle" if channel == "joint_angle" else channel
+            features.append(f"{label} residual correlates with the torque "
                             f"{1e3 * xc.peak_lag_s:+.0f} ms later")
         if hooks & {"friction", "loads"}:
             conds = sorted(diagnosis.localisation.conditions, key=lambda c: -c.concentration)

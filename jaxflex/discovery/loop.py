@@ -32,12 +32,13 @@ from jaxflex.discovery.report import Confirmation, DiscoveryFit, DiscoveryReport
 from jaxflex.discovery.scores import ALPHA, ScoreResult
 from jaxflex.effects import Effect
 from jaxflex.model import Model
-from jaxflex.objective import as_dataset, check_weights
+from jaxflex.objective import as_dataset, check_channels, check_weights
 from jaxflex.simulation import Outputs
 
 MIN_EXPLAINED = 0.9
 
-"""An effect that leaves structure behind is kept only if it removed this share of the misfit."""
+"""An effect that leaves structure behind is kept only if it removed this share of the misfit,
+or, with held-out records, if it lowered their error (the mean over the channels)."""
 
 
 MAX_CONFIRM = 3
@@ -63,27 +64,34 @@ CONFIRM_RATIO = 0.1
 
 
 def _metrics(records: Dataset, preds: Sequence[Outputs], holdout: Dataset | None,
-             holdout_preds: Sequence[Outputs] | None) -> tuple[dict, float, dict | None]:
-    """(NRMSE per output, FRF NRMSE, held-out errors), means over the records, as
-    :func:`jaxflex.comparison.compare` computes them."""
-    rows = [compare_record(r, p, "fit", DEFAULT_T_END, FRFSettings(), None, None)
-            for r, p in zip(records, preds, strict=True)]
-    nrmse = {o: float(np.nanmean([r.nrmse[o] for r in rows])) for o in CHANNELS}
-    frf = [r.frf_nrmse for r in rows if math.isfinite(r.frf_nrmse)]
+             holdout_preds: Sequence[Outputs] | None, channels: Sequence[str],
+             t_end: float | None) -> tuple[dict, float, dict | None]:
+    """(NRMSE per channel, FRF NRMSE, held-out errors), means over the records, as
+    :func:`jaxflex.comparison.compare` computes them over the first ``t_end`` seconds."""
+    def rows(role, data, predictions):
+        return [compare_record(r, p, role, t_end, FRFSettings(), None, None, channels)
+                for r, p in zip(data, predictions, strict=True)]
+
+    fitted = rows("fit", records, preds)
+    nrmse = {o: float(np.nanmean([r.nrmse[o] for r in fitted])) for o in channels}
+    frf = [r.frf_nrmse for r in fitted if math.isfinite(r.frf_nrmse)]
     held = None
     if holdout is not None and holdout_preds is not None:
-        rows = [compare_record(r, p, "held-out", DEFAULT_T_END, FRFSettings(), None, None)
-                for r, p in zip(holdout, holdout_preds, strict=True)]
-        held = {key: {o: float(np.nanmean([getattr(r, key)[o] for r in rows]))
-                      for o in CHANNELS} for key in ("nrmse", "relative_error")}
+        scored = rows("held-out", holdout, holdout_preds)
+        held = {key: {o: float(np.nanmean([getattr(r, key)[o] for r in scored]))
+                      for o in channels} for key in ("nrmse", "relative_error")}
     return nrmse, float(np.mean(frf)) if frf else math.nan, held
 
 
-def _rigid(records: Dataset):
+def _rigid(records: Dataset, model: Model, channels: Sequence[str]):
     """The convex rigid-body estimate (no torque offset: the flexible models have none either),
-    or ``None`` where the records do not determine it."""
+    or ``None`` where the records do not determine it: no joint angle fitted, or an input that
+    is not the hub torque (a voltage or current drive)."""
+    from jaxflex.drives import TorqueDrive
     from jaxflex.rigid import estimate_rigid
 
+    if "joint_angle" not in channels or not isinstance(model.drive, TorqueDrive):
+        return None
     try:
         return estimate_rigid(records, offset=False)
     except ValueError:
@@ -91,7 +99,7 @@ def _rigid(records: Dataset):
 
 
 def _rigid_step(engine: Engine, estimate, records: Dataset, holdout: Dataset | None,
-                alpha: float) -> Step:
+                alpha: float, channels: Sequence[str], t_end: float | None) -> Step:
     """The first rung of the ladder: the rigid-body model (no link flexibility)."""
     from jaxflex.rigid import rigid_simulate
 
@@ -100,28 +108,29 @@ def _rigid_step(engine: Engine, estimate, records: Dataset, holdout: Dataset | N
     held = None
     if holdout is not None:
         held = [rigid_simulate(estimate, r.torque, r.dt, length=length) for r in holdout]
-    nrmse, frf, held = _metrics(records, preds, holdout, held)
+    nrmse, frf, held = _metrics(records, preds, holdout, held, channels, t_end)
     params = {"J_tot": estimate.J_tot, "b_v": estimate.b_v, "tau_c": estimate.tau_c}
     fit = DiscoveryFit(model=None, params=params, cost=engine.prediction_cost(preds),
                        n_params=len(params),
                        n_samples=engine.n_samples, noise=engine.noise)
     return Step(added=None, fit=fit, nrmse=nrmse, frf_nrmse=frf, holdout=held,
-                diagnosis=diagnose(records, preds, noise=engine.noise, alpha=alpha),
+                diagnosis=diagnose(records, preds, noise=engine.noise, alpha=alpha,
+                                   channels=channels),
                 label="rigid", predictions=preds)
 
 
-def _base_weights(records: Dataset, noise: Noise | None,
-                  weights: Mapping[str, float] | None) -> dict[str, float] | None:
+def _base_weights(records: Dataset, noise: Noise | None, weights: Mapping[str, float] | None,
+                  channels: Sequence[str]) -> dict[str, float] | None:
     """Channel weights of the base model's search: the noise-derived ones
     (:func:`jaxflex.objective.noise_weights`) where ``noise`` gives every fitted channel's level,
     times the user's ``weights`` — the weighting the discovery fits use."""
-    from jaxflex.objective import DEFAULT_CHANNELS, noise_weights
+    from jaxflex.objective import noise_weights
 
-    if noise is None or any(c not in noise_levels(noise) for c in DEFAULT_CHANNELS):
+    if noise is None or any(c not in noise_levels(noise, channels) for c in channels):
         return None if weights is None else dict(weights)
     user = dict(weights or {})
     return {c: w * float(user.get(c, 1.0))
-            for c, w in noise_weights(records, noise, DEFAULT_CHANNELS).items()}
+            for c, w in noise_weights(records, noise, channels).items()}
 
 
 def _initial_params(records: Dataset, model: Model, initial: Any, budget: tuple[int, int],
@@ -137,7 +146,8 @@ def _initial_params(records: Dataset, model: Model, initial: Any, budget: tuple[
     from jaxflex.identification import identify
 
     bounds = {k: v for k, v in (fit_options["bounds"] or {}).items() if k in model.space.names}
-    weights = _base_weights(records, fit_options["noise"], fit_options["weights"])
+    channels = fit_options["channels"]
+    weights = _base_weights(records, fit_options["noise"], fit_options["weights"], channels)
     seeds = None
     if rigid is not None:
         from jaxflex.rigid import warm_start
@@ -147,8 +157,20 @@ def _initial_params(records: Dataset, model: Model, initial: Any, budget: tuple[
         seeds = [{k: float(v) for k, v in space.from_unit(u).items()} for u in units]
     fit = identify(records, model, seed=seed, generations=budget[0], population=budget[1],
                    progress=progress, init_population=seeds, intervals=False,
-                   bounds=bounds or None, fixed=fixed or None, weights=weights)
+                   bounds=bounds or None, fixed=fixed or None, weights=weights,
+                   channels=channels)
     return full_params(model, fit)
+
+
+def _channels(records: Dataset, channels: Sequence[str]) -> tuple[str, ...]:
+    """``channels`` validated: distinct simulator outputs that every record measures."""
+    channels = check_channels(channels)
+    for c in channels:
+        for r in records:
+            if c not in r.columns:
+                raise ValueError(f"record {r.name!r} has no {c!r} column to fit; its columns "
+                                 f"are {list(r.columns)}")
+    return channels
 
 
 def _fast() -> bool:
@@ -171,6 +193,8 @@ def discover(
     bounds: Mapping[str, tuple[float, float]] | None = None,
     fixed: Mapping[str, float] | None = None,
     weights: Mapping[str, float] | None = None,
+    channels: Sequence[str] = CHANNELS,
+    t_end: float | None = DEFAULT_T_END,
     max_confirm: int = MAX_CONFIRM,
 ) -> DiscoveryReport:
     """Find the effects the model is missing, one at a time (see :mod:`jaxflex.discovery`).
@@ -194,7 +218,14 @@ def discover(
     weight ``w`` scales its noise-whitened residual by ``√w`` (its noise level divided by
     ``√w``; 0 leaves the channel out of the fits and tests). Unlike ``identify``, weights combine
     with noise levels: the tests assume the weighted residuals are unit white noise, so weights
-    other than 0 and 1 change the tests' level. Returns a :class:`DiscoveryReport`.
+    other than 0 and 1 change the tests' level.
+
+    ``channels`` are the simulator outputs the records measure and the fits use, as in
+    ``identify`` (an arm's sensors give them: :func:`jaxflex.measured.fit_channels`, e.g.
+    ``("joint_angle", "root_strain")`` for an encoder and a root strain gauge); residuals,
+    noise levels, diagnostics and the report are per channel, and what the records do not
+    measure is not fitted. The steps' NRMSE covers the first ``t_end`` seconds of each record
+    (``None``: the whole record). Returns a :class:`DiscoveryReport`.
     """
     t0 = time.perf_counter()
     records = as_dataset(records)
@@ -213,13 +244,17 @@ def discover(
         raise ValueError(f"budget={budget!r} must be generations or (generations, population)")
     budget = (int(budget[0]), int(budget[1]))
     cands = tuple(c for c in candidate_set(candidates) if c.name not in model.effect_names)
-    fit_options = {"bounds": bounds, "fixed": fixed, "weights": weights, "noise": noise}
+    channels = _channels(records, channels)
+    if holdout is not None:
+        _channels(holdout, channels)
+    fit_options = {"bounds": bounds, "fixed": fixed, "weights": weights, "noise": noise,
+                   "channels": channels}
     Engine.make_universe(model, cands, bounds, fixed)  # bad names or values: fail before any fit
-    check_weights(weights, CHANNELS)
-    rigid = _rigid(records)
+    check_weights(weights, channels)
+    rigid = _rigid(records, model, channels)
     start = _initial_params(records, model, initial, budget, seed, progress, rigid, fit_options)
     engine = Engine.build(model, cands, records, start, noise, bounds=bounds, fixed=fixed,
-                          weights=weights)
+                          weights=weights, channels=channels)
     u = engine.universe
     names = [c.name for c in u.candidates]
 
@@ -227,13 +262,13 @@ def discover(
     active: list[int] = []
     steps: list[Step] = []
     if rigid is not None:
-        steps.append(_rigid_step(engine, rigid, records, holdout, alpha))
+        steps.append(_rigid_step(engine, rigid, records, holdout, alpha, channels, t_end))
     added: dict[str, Any] = {}
     for _ in Progress(range(max_steps + 1), label="discover", enabled=progress):
         preds = engine.predictions(x, records)
-        diag = diagnose(records, preds, noise=engine.noise, alpha=alpha)
+        diag = diagnose(records, preds, noise=engine.noise, alpha=alpha, channels=channels)
         held_preds = engine.predictions(x, holdout) if holdout is not None else None
-        nrmse, frf, held = _metrics(records, preds, holdout, held_preds)
+        nrmse, frf, held = _metrics(records, preds, holdout, held_preds, channels, t_end)
         ranking: list[ScoreResult] = []
         confirmations: list[Confirmation] = []
         best = None
@@ -280,7 +315,8 @@ def discover(
         else:
             note = "every candidate is in the model already"
         if withdrawn:
-            note += (f" ({', '.join(withdrawn)} reduced the misfit but left most of it; "
+            held = " and did not lower the held-out error" if holdout is not None else ""
+            note += (f" ({', '.join(withdrawn)} reduced the misfit but left most of it{held}; "
                      "withdrawn)")
         unexplained["message"] = f"{unexplained['message']}; {note}"
     return DiscoveryReport(
@@ -293,6 +329,7 @@ def discover(
         holdout=holdout,
         settings={"alpha": alpha, "correction": "Bonferroni over the candidates of each step",
                   "max_steps": max_steps, "max_confirm": max_confirm, "seed": seed,
+                  "channels": list(channels), "t_end": t_end,
                   "budget": budget if initial is None else None,
                   "initial": "given" if initial is not None else "differential evolution",
                   "noise": {c: v.to_dict() for c, v in engine.noise.items()},
@@ -328,13 +365,27 @@ def _final_ranking(ranking: Sequence[ScoreResult], confirmations: Sequence[Confi
 
 def _withdraw(steps: list[Step]) -> tuple[list[Step], list[str]]:
     """Steps without effects that leave structure behind yet removed less than
-    :data:`MIN_EXPLAINED` of the misfit: the run is cut before the first such effect."""
+    :data:`MIN_EXPLAINED` of the misfit and did not lower the held-out error (no held-out
+    records: did not): the run is cut before the first such effect.
+
+    A real rig always leaves some structure the candidates cannot explain; an effect that
+    explains part of it is kept when records it was not fitted to confirm it."""
     if steps[-1].diagnosis.consistent_with_noise:
         return steps, []
     for i, step in enumerate(steps):
-        if step.added is not None and step.explained < MIN_EXPLAINED:
+        if (step.added is not None and step.explained < MIN_EXPLAINED
+                and not _predicts_better(steps[i - 1], step)):
             return steps[:i], [s.added for s in steps[i:] if s.added]
     return steps, []
+
+
+def _predicts_better(before: Step, after: Step) -> bool:
+    """True if ``after`` has the lower held-out relative error, the mean over the channels (each
+    counts alike, whatever its unit, as in the identification objective)."""
+    if before.holdout is None or after.holdout is None:
+        return False
+    old, new = before.holdout["relative_error"], after.holdout["relative_error"]
+    return float(np.mean(list(new.values()))) < float(np.mean(list(old.values())))
 
 
 __all__ = [

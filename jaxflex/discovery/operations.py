@@ -3,7 +3,7 @@ likelihood, add one effect and refit."""
 
 from __future__ import annotations
 
-from collections.abc import Iterable, Mapping
+from collections.abc import Iterable, Mapping, Sequence
 from typing import Any
 
 import numpy as np
@@ -14,6 +14,7 @@ from jaxflex.diagnosis import (
     Noise,
     noise_levels,
 )
+from jaxflex.diagnosis.noise import CHANNELS
 from jaxflex.discovery._engine import Engine
 from jaxflex.discovery.candidates import Candidate, as_candidate, candidate_set
 from jaxflex.discovery.report import DiscoveryFit
@@ -44,6 +45,7 @@ def score_tests(
     *,
     alpha: float = ALPHA,
     noise: Noise | None = None,
+    channels: Sequence[str] = CHANNELS,
 ) -> list[ScoreResult]:
     """Score-test every candidate effect at the fit ``params`` of ``model`` (best first).
 
@@ -51,11 +53,12 @@ def score_tests(
     its velocity grid); those already in ``model`` are skipped. ``noise`` gives each channel's
     :class:`~jaxflex.diagnosis.NoiseLevel` (default: estimated from the residuals).
     ``significant`` marks p-values below ``alpha/m`` (Bonferroni over the ``m`` candidates).
+    ``channels`` are the outputs the records measure (see :func:`~jaxflex.discovery.discover`).
     """
     records = as_dataset(records)
     values = full_params(model, params)
     cands = tuple(c for c in candidate_set(candidates) if c.name not in model.effect_names)
-    engine = Engine.build(model, cands, records, values, noise)
+    engine = Engine.build(model, cands, records, values, noise, channels=channels)
     return engine.score_tests(engine.universe.vector(values), (), alpha)
 
 
@@ -65,16 +68,17 @@ def refit(
     records: Dataset | Iterable[Record],
     *,
     noise: Noise | None = None,
+    channels: Sequence[str] = CHANNELS,
 ) -> DiscoveryFit:
     """Fit ``model`` on the discovery likelihood from ``params`` (a mapping or a fit).
 
     Levenberg–Marquardt of every parameter on the noise-whitened residuals
     (:mod:`jaxflex.discovery`); ``noise`` defaults to the levels estimated from the residuals
-    at ``params``.
+    at ``params``; ``channels`` are the outputs the records measure.
     """
     records = as_dataset(records)
     values = full_params(model, params)
-    engine = Engine.build(model, (), records, values, noise)
+    engine = Engine.build(model, (), records, values, noise, channels=channels)
     x, cost = engine.fit(engine.universe.vector(values), ())
     return engine.discovery_fit(x, (), cost)
 
@@ -86,6 +90,7 @@ def add_effect(
     *,
     model: Model | None = None,
     noise: Noise | None = None,
+    channels: Sequence[str] | None = None,
 ) -> DiscoveryFit:
     """Add ``effect`` to a fitted model and refit everything, warm-started.
 
@@ -94,6 +99,8 @@ def add_effect(
     Levenberg–Marquardt refines all of them on the discovery likelihood. ``fit`` is a
     :class:`DiscoveryFit` or anything with ``.params`` (then give its ``model``; default the
     reference testbed). A profiled effect name (``"stribeck"``) uses its best-scoring member.
+    ``channels`` are the outputs the records measure (default: those of a
+    :class:`DiscoveryFit`, else ``joint_angle`` and ``tip_acceleration``).
     """
     records = as_dataset(records)
     base = model if model is not None else getattr(fit, "model", None)
@@ -104,8 +111,10 @@ def add_effect(
     if cand.name in base.effect_names:
         raise ValueError(f"effect {cand.name!r} is already in the model")
     levels = dict(fit.noise) if isinstance(fit, DiscoveryFit) else {}
-    levels.update(noise_levels(noise))
-    engine = Engine.build(base, (cand,), records, values, levels)
+    if channels is None:
+        channels = tuple(levels) or CHANNELS
+    levels.update(noise_levels(noise, channels))
+    engine = Engine.build(base, (cand,), records, values, levels, channels=channels)
     x0 = engine.universe.vector(values)
     best = engine.score_tests(x0, (), 1.0)[0]
     slot, start = engine.start(x0, (), engine.candidate(cand.name), best.estimate)

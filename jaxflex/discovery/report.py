@@ -17,6 +17,10 @@ from jaxflex.discovery.scores import ScoreResult
 from jaxflex.model import Model
 from jaxflex.simulation import Outputs
 
+SHORT: dict[str, str] = {"joint_angle": "angle", "tip_acceleration": "tip acc",
+                         "root_strain": "strain", "tip_deflection": "deflection",
+                         "joint_velocity": "velocity", "joint_torque": "torque"}
+"""Short channel names of the step table's columns."""
 
 @dataclass(frozen=True)
 class DiscoveryFit:
@@ -143,6 +147,11 @@ class DiscoveryReport:
         return self.final.fit.params
 
     @property
+    def channels(self) -> tuple[str, ...]:
+        """The output channels fitted and scored (the ones the records measure)."""
+        return tuple(self.steps[0].nrmse)
+
+    @property
     def added(self) -> tuple[str, ...]:
         """Effects added, in order."""
         return tuple(s.added for s in self.steps if s.added)
@@ -158,16 +167,15 @@ class DiscoveryReport:
 
     def table(self) -> str:
         """The step table: structure → NRMSE per output, FRF NRMSE, held-out error, BIC."""
-        head = ["step", "structure", "angle NRMSE %", "tip acc NRMSE %", "FRF NRMSE %",
-                "held-out angle %", "held-out acc %", "BIC"]
+        channels = self.channels
+        head = ["step", "structure", *(f"{SHORT.get(c, c)} NRMSE %" for c in channels),
+                "FRF NRMSE %", *(f"held-out {SHORT.get(c, c)} %" for c in channels), "BIC"]
         rows = []
         for i, s in enumerate(self.steps):
             ho = s.holdout["relative_error"] if s.holdout else None
             rows.append([
-                str(i), s.structure, f"{s.nrmse['joint_angle']:.4g}",
-                f"{s.nrmse['tip_acceleration']:.4g}", _fmt(s.frf_nrmse),
-                _fmt(100 * ho["joint_angle"]) if ho else "-",
-                _fmt(100 * ho["tip_acceleration"]) if ho else "-",
+                str(i), s.structure, *(f"{s.nrmse[c]:.4g}" for c in channels),
+                _fmt(s.frf_nrmse), *(_fmt(100 * ho[c]) if ho else "-" for c in channels),
                 f"{s.bic:.6g}" if math.isfinite(s.bic) else "-",
             ])
         widths = [max(len(r[k]) for r in rows + [head]) for k in range(len(head))]
@@ -176,7 +184,7 @@ class DiscoveryReport:
         floor = ", ".join(f"{k} {v:.3g} %" for k, v in self.noise_floor.items())
         lines.append(f"noise floor (NRMSE the measurement noise alone gives): {floor}")
         for channel, level in self.noise.items():
-            lines.append(f"noise level {channel}: σ = {level.sigma:.4g} {UNITS[channel]} "
+            lines.append(f"noise level {channel}: σ = {level.sigma:.4g} {UNITS.get(channel, '')} "
                          f"({level.describe()})")
         for s in self.steps:
             if s.ranking:
@@ -186,7 +194,9 @@ class DiscoveryReport:
                     for r in s.ranking[:3])
                 lines.append(f"after '{s.structure}': top candidates {top}")
         if self.withdrawn:
-            lines.append(f"withdrawn (did not explain the misfit): {', '.join(self.withdrawn)}")
+            held = " nor lower the held-out error" if self.holdout is not None else ""
+            lines.append(f"withdrawn (did not explain the misfit{held}): "
+                         f"{', '.join(self.withdrawn)}")
         if self.unexplained:
             lines.append(f"UNEXPLAINED: {self.unexplained['message']}")
         else:

@@ -30,7 +30,11 @@ from jaxflex.diagnosis import (
 )
 from jaxflex.plots._style import MARK, MEASURED, MODEL, RESIDUAL, figure_axes, new_figure, style
 
-_LABELS = {"joint_angle": "joint angle", "tip_acceleration": "tip acceleration"}
+_LABELS = {"joint_angle": "joint angle", "tip_acceleration": "tip acceleration",
+           "root_strain": "root strain", "tip_deflection": "tip deflection",
+           "joint_velocity": "joint velocity"}
+_COLOURS = {"joint_angle": MODEL, "tip_acceleration": RESIDUAL, "root_strain": "tab:purple",
+            "tip_deflection": "tab:brown", "joint_velocity": "tab:olive"}
 _AFTER = "tab:green"
 
 
@@ -152,11 +156,10 @@ def plot_error_falling(
     fig, axes = new_figure(1, 1, figsize=figsize, dpi=dpi)
     ax = axes[0, 0]
     x = np.arange(len(labels))
-    colours = {"joint_angle": MODEL, "tip_acceleration": RESIDUAL}
     for name, values in nrmse.items():
         if len(values) != len(labels):
             raise ValueError(f"nrmse[{name!r}] has {len(values)} values for {len(labels)} steps")
-        colour = colours.get(name, MARK)
+        colour = _COLOURS.get(name, MARK)
         ax.semilogy(x, values, "o-", color=colour, label=f"{_LABELS.get(name, name)} NRMSE")
         if noise_floor and name in noise_floor:
             ax.axhline(noise_floor[name], color=colour, ls="--", lw=1.0,
@@ -164,7 +167,7 @@ def plot_error_falling(
     if frf_nrmse is not None:
         ax.semilogy(x, frf_nrmse, "s-", color=MARK, label="FRF NRMSE")
     for name, values in (holdout or {}).items():
-        ax.semilogy(x, values, "^:", color=colours.get(name, "0.4"),
+        ax.semilogy(x, values, "^:", color=_COLOURS.get(name, "0.4"),
                     label=f"held-out {_LABELS.get(name, name)} error")
     ax.set_xticks(x, labels, rotation=15)
     ax.set_ylabel("error (%)")

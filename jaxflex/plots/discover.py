@@ -26,7 +26,7 @@ from jaxflex.plots.diagnose import plot_diagnosis, plot_error_falling, plot_over
 def plot_discovery(report: DiscoveryReport, **kwargs) -> Figure:
     """The error of every step of ``report`` (see :func:`plot_error_falling`)."""
     steps = report.steps
-    outputs = list(steps[0].nrmse)
+    outputs = report.channels
     holdout = None
     if steps[0].holdout:
         holdout = {o: [100.0 * s.holdout["relative_error"][o] for s in steps] for o in outputs}
@@ -47,7 +47,7 @@ def plot_before_after(report: DiscoveryReport, which: int | str = 0, **kwargs) -
     first, last = report.base, report.final
     return plot_overlay(
         report.records[i], first.predictions[i], last.predictions[i],
-        labels=(first.structure, last.structure), **kwargs,
+        labels=(first.structure, last.structure), outputs=report.channels, **kwargs,
     )
 
 
