@@ -60,8 +60,6 @@ def test_synthetic_records_carry_the_offset_in_that_column_alone():
 
 
 @pytest.mark.slow  # about 40 s: the discovery engine compiles its Jacobian
-@pytest.mark.xfail(strict=True, reason="discovery's Variant wrapper does not yet pass the "
-                   "readings hook on to the effect it wraps (jaxflex/discovery/candidates.py)")
 def test_discover_scores_the_encoder_offset_first():
     """The score test of sensor_offset:joint_angle at the true motion parameters is the
     largest, ahead of a torque offset and gravity, with the right sign."""

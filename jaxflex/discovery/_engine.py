@@ -29,6 +29,7 @@ from jaxflex.model import Model
 from jaxflex.objective import build_objective
 from jaxflex.parameters import ParameterSpace
 from jaxflex.refine import bounded_levenberg_marquardt
+from jaxflex.sensors import calibrated
 from jaxflex.simulation import Outputs, simulate
 
 INNER_WEIGHT = 1e-2
@@ -429,5 +430,8 @@ class Engine:
 
 def simulate_all(universe: Universe, x: np.ndarray, records: Dataset) -> tuple[Outputs, ...]:
     params = {**universe.fixed, **dict(zip(universe.space.names, map(float, x), strict=True))}
-    return tuple(simulate(universe.model, params, r.torque, dt=r.dt) for r in records)
+    return tuple(
+        calibrated(universe.model, params, simulate(universe.model, params, r.torque, dt=r.dt))
+        for r in records
+    )
 

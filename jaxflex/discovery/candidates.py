@@ -4,11 +4,11 @@ one."""
 from __future__ import annotations
 
 import dataclasses
-from collections.abc import Iterable
+from collections.abc import Iterable, Mapping
 from dataclasses import dataclass
 
 import equinox as eqx
-from jaxtyping import Array
+from jaxtyping import Array, Float
 
 from jaxflex.effects import Effect, get_effect, library
 from jaxflex.effects._base import Structure
@@ -49,6 +49,11 @@ class Variant(Effect):
 
     def input_torque(self, params: Params, torque: Array, h: float) -> Array:
         return self.inner.input_torque(self._own(params), torque, h)
+
+    def readings(
+        self, params: Params, readings: Mapping[str, Float[Array, "*batch n"]]
+    ) -> dict[str, Float[Array, "*batch n"]]:
+        return self.inner.readings(self._own(params), readings)
 
 
 @dataclass(frozen=True)
