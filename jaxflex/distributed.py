@@ -23,10 +23,12 @@ uses jaxflex as on one process.
 from __future__ import annotations
 
 import os
+import signal
 import socket
 import subprocess
 import sys
 import tempfile
+import threading
 import time
 from collections.abc import Sequence
 
@@ -37,6 +39,7 @@ from jaxflex.parallel import default_host_devices
 
 COORDINATOR_ENV = "JAX_COORDINATOR_ADDRESS"
 POLL_S = 0.2
+STOP_S = 10.0
 
 
 def start(processes: int | None, process_id: int | None, coordinator: str | None) -> None:
@@ -53,9 +56,14 @@ def start(processes: int | None, process_id: int | None, coordinator: str | None
         raise ValueError(f"--process-id needs --coordinator HOST:PORT (or {COORDINATOR_ENV})")
     if coordinator is not None and process_id is None:
         raise ValueError("--coordinator needs --process-id (this process's place in the group)")
+    own_handler = signal.getsignal(signal.SIGTERM)
     jax.distributed.initialize(
         coordinator_address=coordinator, num_processes=processes, process_id=process_id
     )
+    if threading.current_thread() is threading.main_thread():
+        # JAX's preemption notifier took SIGTERM over and only records it: the process would
+        # run on, and hold the group; put back what SIGTERM did before.
+        signal.signal(signal.SIGTERM, own_handler)
     # Open the connections between the processes' devices now, while the group is in step:
     # opening them waits only 30 s for the slowest process, and the first program of a search
     # may finish compiling minutes apart on busy hosts; once open, a collective waits as long
@@ -88,13 +96,15 @@ def launch_local(argv: Sequence[str], processes: int) -> int:
     Each process gets ``--process-id`` and the coordinator's address, and, unless
     ``JAXFLEX_HOST_DEVICES`` is set, its share of the cores as CPU devices. Process 0 prints to
     this terminal; the others' output is kept and shown only if one of them fails while process
-    0 does not. If any process fails, the rest are stopped. Returns the group's exit status.
+    0 does not. If any process fails, the rest are stopped, as they are when this one is
+    interrupted or terminated. Returns the group's exit status.
     """
     coordinator = f"localhost:{free_port()}"
     env = dict(os.environ)
     env.setdefault("JAXFLEX_HOST_DEVICES", str(max(1, default_host_devices() // processes)))
     logs = [tempfile.TemporaryFile() for _ in range(processes)]
-    group = []
+    group: list[subprocess.Popen] = []
+    previous = _forward_sigterm(group)
     for rank in range(processes):
         command = [sys.executable, "-m", "jaxflex", *argv, "--process-id", str(rank),
                    "--coordinator", coordinator]
@@ -103,10 +113,9 @@ def launch_local(argv: Sequence[str], processes: int) -> int:
     try:
         status = _wait(group)
     finally:
-        for process in group:
-            if process.poll() is None:
-                process.terminate()
-                process.wait()
+        _stop(group)
+        if previous is not None:
+            signal.signal(signal.SIGTERM, previous)
     if status != 0 and group[0].returncode == 0:
         failed = next(i for i, p in enumerate(group) if p.returncode != 0)
         logs[failed].seek(0)
@@ -114,6 +123,37 @@ def launch_local(argv: Sequence[str], processes: int) -> int:
     for log in logs:
         log.close()
     return status
+
+
+def _stop(group: list[subprocess.Popen]) -> None:
+    """Terminate the processes still running (killed if they have not ended within
+    :data:`STOP_S`)."""
+    for process in group:
+        if process.poll() is None:
+            process.terminate()
+    for process in group:
+        try:
+            process.wait(timeout=STOP_S)
+        except subprocess.TimeoutExpired:
+            process.kill()
+            process.wait()
+
+
+def _forward_sigterm(group: list[subprocess.Popen]):
+    """Stop the group before this process's own SIGTERM handler runs (main thread only);
+    returns the handler it replaced, to put back, or None."""
+    if threading.current_thread() is not threading.main_thread():
+        return None
+    previous = signal.getsignal(signal.SIGTERM)
+
+    def handler(signum, frame):
+        _stop(group)
+        if callable(previous):
+            previous(signum, frame)
+        raise SystemExit(128 + signum)
+
+    signal.signal(signal.SIGTERM, handler)
+    return previous
 
 
 def _wait(group: list[subprocess.Popen]) -> int:

@@ -6,11 +6,13 @@ import json
 import os
 import subprocess
 import sys
+import time
 
 import pytest
 
 from jaxflex.cli import main
 from jaxflex.data import save_record
+from jaxflex.distributed import STOP_S
 from jaxflex.synthetic import make_records
 
 SEARCH = ["--generations", "3", "--population", "40", "--no-refine", "--quiet"]
@@ -63,6 +65,58 @@ def test_a_failing_group_stops_with_one_message(tmp_path):
                     str(tmp_path / "fit.json")], 1)
     assert done.returncode == 2
     assert done.stderr.count("missing.csv: record file not found") == 1
+
+
+def commands_naming(marker: str) -> list[str]:
+    """Command lines of the running processes that contain ``marker`` (Linux /proc)."""
+    found = []
+    for entry in os.listdir("/proc"):
+        try:
+            with open(f"/proc/{entry}/cmdline", "rb") as f:
+                line = f.read().replace(b"\0", b" ").decode(errors="replace")
+        except (OSError, ValueError):
+            continue
+        if marker in line and entry.isdigit():
+            found.append(line)
+    return found
+
+
+def connected(port: int) -> bool:
+    """Whether a TCP connection to ``port`` on this machine is established (Linux /proc)."""
+    for table in ("/proc/net/tcp", "/proc/net/tcp6"):
+        with open(table) as f:
+            for line in f.readlines()[1:]:
+                local, remote, state = line.split()[1:4]
+                ports = {int(local.split(":")[1], 16), int(remote.split(":")[1], 16)}
+                if state == "01" and port in ports:
+                    return True
+    return False
+
+
+@pytest.mark.skipif(not os.path.isdir("/proc"), reason="lists processes through /proc")
+def test_a_terminated_launcher_stops_its_group(tmp_path, record):
+    out = str(tmp_path / "s.json")
+    env = {**os.environ, "JAXFLEX_HOST_DEVICES": "1", "JAX_PLATFORMS": "cpu"}
+    launcher = subprocess.Popen(
+        [sys.executable, "-m", "jaxflex", "study", record, "--methods", "de", "--seeds", "0",
+         "--generations", "100", "--quiet", "--processes", "2", "--out", out],
+        env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+    )
+    deadline = time.monotonic() + 120
+    while not (child := commands_naming(f"{out} --process-id 1")) or not connected(
+        int(child[0].split("--coordinator localhost:")[1].split()[0])
+    ):  # terminated once the group has joined JAX's runtime (which handles SIGTERM itself)
+        assert time.monotonic() < deadline and launcher.poll() is None
+        time.sleep(0.2)
+    time.sleep(2.0)
+    sent = time.monotonic()
+    launcher.terminate()
+    _, err = launcher.communicate(timeout=60)
+    assert time.monotonic() - sent < STOP_S  # each process stopped on SIGTERM, none was killed
+    assert launcher.returncode == 143
+    assert err.endswith("jaxflex study: terminated; no partial output was left\n")
+    assert not commands_naming(out)  # the launcher's and its group's
+    assert not os.path.exists(out)
 
 
 @pytest.mark.parametrize(
