@@ -99,6 +99,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     except KeyboardInterrupt:
         print("jaxflex: interrupted", file=sys.stderr)
         return EXIT_INTERRUPTED
+    args.argv = argv  # what a command that starts copies of itself passes on
     prefix = f"jaxflex {args.command}"
     restore = _on_sigterm(prefix)
     format_warning = warnings.formatwarning

@@ -137,6 +137,7 @@ def identify_with_arm(args: argparse.Namespace, arm: Arm, arm_file: str) -> int:
     from jaxflex.cli._checks import JSON_SUFFIXES, check_outputs
     from jaxflex.cli._options import model_from
     from jaxflex.cli.identify import search, sources
+    from jaxflex.distributed import is_main
 
     window = parse_window(args.window)
     records = load_rig_records(args.data, args)
@@ -145,6 +146,8 @@ def identify_with_arm(args: argparse.Namespace, arm: Arm, arm_file: str) -> int:
     ready = model_records(arm, records, window)
     options = arm_fit_keywords(args, identify, arm, records[0])
     fit = search(args, ready, arm.model(*model_from(args.effect).effects), options)
+    if not is_main():
+        return 0
     fit = dataclasses.replace(fit, settings=fit.settings | arm_settings(arm_file, window))
     print(fit.summary(), end="")
     with all_or_nothing():

@@ -20,6 +20,7 @@ from jaxflex.cli._checks import (
     seed,
 )
 from jaxflex.cli._options import add_fit_options, add_record_options, fit_keywords, model_from
+from jaxflex.cli._processes import add_process_arguments, enter
 
 HELP = "identify the parameters from measured records (DE, GA or PSO + refinement)"
 
@@ -38,6 +39,7 @@ def add_search_arguments(p: argparse.ArgumentParser) -> None:
     add_record_options(p)
     p.add_argument("--overwrite", action="store_true", help="replace existing output files")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
+    add_process_arguments(p)
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
@@ -58,8 +60,11 @@ def register(subparsers: argparse._SubParsersAction) -> None:
 
 def run(args: argparse.Namespace) -> int:
     from jaxflex._io import all_or_nothing
+    from jaxflex.distributed import is_main
     from jaxflex.identification import identify
 
+    if (status := enter(args)) is not None:
+        return status
     found = arm_of(args)
     if found is not None:
         if args.plot is not None:
@@ -71,6 +76,8 @@ def run(args: argparse.Namespace) -> int:
         overwrite=args.overwrite, inputs=sources(records),
     )
     fit = search(args, records, model_from(args.effect), fit_keywords(args, identify))
+    if not is_main():
+        return 0
     print(fit.summary(), end="")
     with all_or_nothing():
         fit.to_json(out, overwrite=args.overwrite)

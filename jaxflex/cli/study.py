@@ -21,6 +21,7 @@ from jaxflex.cli._arm import (
 )
 from jaxflex.cli._checks import FIGURE_SUFFIXES, JSON_SUFFIXES, MAX_SEED, check_outputs
 from jaxflex.cli._options import fit_keywords, model_from
+from jaxflex.cli._processes import enter
 from jaxflex.cli.identify import add_search_arguments, check_finite_cost, sources
 
 MAX_SEEDS = 1000
@@ -81,8 +82,11 @@ def run(args: argparse.Namespace) -> int:
 
     from jaxflex import identify
     from jaxflex._io import all_or_nothing
+    from jaxflex.distributed import is_main
     from jaxflex.study import run_study
 
+    if (status := enter(args)) is not None:
+        return status
     methods = parse_methods(args.methods)
     seeds = parse_seeds(args.seeds)
     found = arm_of(args)
@@ -112,6 +116,8 @@ def run(args: argparse.Namespace) -> int:
     )
     for r in study.runs:
         check_finite_cost(r.cost, "bounds" in keywords)
+    if not is_main():
+        return 0
     if found is not None:
         study = dataclasses.replace(study, settings=study.settings | arm_settings(found[1], window))
     print(study.table(), end="")
