@@ -22,6 +22,7 @@ from jaxflex.cli._checks import (
 from jaxflex.cli._options import add_fit_options, add_record_options, fit_keywords, model_from
 
 HELP = "identify the parameters from measured records (DE, GA or PSO + refinement)"
+"""One-line summary of ``jaxflex identify`` in the command list."""
 
 
 def add_search_arguments(p: argparse.ArgumentParser) -> None:

@@ -19,6 +19,7 @@ CHANNELS: tuple[str, ...] = OUTPUT_COLUMNS
 
 
 UNITS: dict[str, str] = {"joint_angle": "rad", "tip_acceleration": "m/s^2"}
+"""Unit of each output channel, for the reports."""
 
 
 NOISE_SOURCES: tuple[str, ...] = ("given", "quantisation", "estimated", "floor")
