@@ -4,15 +4,20 @@ Importing jaxflex switches JAX to float64 (structural dynamics with stiff FEM mo
 exposes one JAX CPU device per usable core so that populations run on all of them (see
 :mod:`jaxflex.parallel`; ``JAXFLEX_HOST_DEVICES=1`` turns it off) and, unless ``XLA_FLAGS``
 already says otherwise, turns off XLA's multi-threaded Eigen on the CPU, whose thread pool can
-wedge on vmapped programs on small machines.
+wedge on vmapped programs on small machines, and XLA's rewriting of large reductions into
+library kernels (YNNPACK), which sum in another order than XLA's own loops and are chosen by
+array size: with them a candidate's cost would depend on how many candidates share its device,
+so on the number of host devices.
 """
 
 import os
 
-if "xla_cpu_multi_thread_eigen" not in os.environ.get("XLA_FLAGS", ""):
-    os.environ["XLA_FLAGS"] = (
-        os.environ.get("XLA_FLAGS", "") + " --xla_cpu_multi_thread_eigen=false"
-    ).strip()
+for _flag, _value in (
+    ("xla_cpu_multi_thread_eigen", "false"),
+    ("xla_disable_hlo_passes", "dot-library-rewriter"),
+):
+    if _flag not in os.environ.get("XLA_FLAGS", ""):
+        os.environ["XLA_FLAGS"] = f"{os.environ.get('XLA_FLAGS', '')} --{_flag}={_value}".strip()
 
 import jax  # noqa: E402
 

@@ -34,6 +34,7 @@ from jaxflex._io import atomic_write
 REQUIRED_COLUMNS: tuple[str, ...] = ("time", "torque", "joint_angle", "tip_acceleration")
 """The columns of the reference-testbed format; a record may lack all but ``time``."""
 OUTPUT_COLUMNS: tuple[str, ...] = ("joint_angle", "tip_acceleration")
+"""Outputs fitted by default: joint angle (rad), tip acceleration (m/s²)."""
 INPUT_COLUMNS: tuple[str, ...] = ("torque", "current", "voltage")
 """Input columns, one per drive; a record holds exactly one of them."""
 KNOWN_UNITS: dict[str, str] = {
@@ -49,6 +50,7 @@ KNOWN_UNITS: dict[str, str] = {
     "root_strain": "1",
     "deflection_angle": "rad",
 }
+"""Unit of every column jaxflex knows (SI; ``1`` for strain), as a record reports them."""
 MIN_FILE_SAMPLES = 16
 """A file with fewer samples is refused: too short to identify anything, probably truncated."""
 UNIFORM_RTOL = 1e-3
@@ -60,6 +62,7 @@ _NPZ_METADATA_KEY = "_metadata"
 _SUFFIXES = (".csv", ".npz")
 
 RowLabel = Callable[[int], str]
+"""Names a row of a file for error messages (row index → text), e.g. its line number."""
 
 
 class RecordError(ValueError):

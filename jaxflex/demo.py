@@ -42,6 +42,7 @@ from jaxflex.synthetic import (
 FIT_ON = "triangular"
 """The record the demo identifies on; the others are held out."""
 NOISE = {"encoder_counts": ENCODER_COUNTS, "accel_sigma": ACCELEROMETER_SIGMA}
+"""Noise of the demo's records: encoder counts per revolution, accelerometer σ (m/s²)."""
 BUDGET = {"population": 24, "generations": 12}
 """A deliberately short search: the refinement finishes the job, and the demo stays quick."""
 DISCOVER_DIR = "discover"
@@ -68,6 +69,7 @@ class DemoState:
 
 
 Step = Callable[[DemoState], DemoState]
+"""One step of the demo: takes the state so far, returns it with the step's results."""
 
 
 def make_data(state: DemoState) -> DemoState:
@@ -152,6 +154,7 @@ STEPS: tuple[tuple[str, Step], ...] = (
     ("report", write_report),
     ("discover", discover_hidden_effect),
 )
+"""The demo's steps in order, by name."""
 
 
 def planned_files(out: Path) -> list[Path]:

@@ -62,13 +62,16 @@ DEFAULT_NOISE: dict[str, float] = {
 CRITERIA: dict[str, str] = {"D": "log det F", "E": "log λ_min(F)"}
 """The design criteria and what each maximises."""
 LIMITS: tuple[str, ...] = ("peak_torque", "rms_torque", "max_angle", "max_speed")
+"""The limits a designed input must respect (see :data:`LIMIT_UNITS`)."""
 LIMIT_UNITS: dict[str, str] = {
     "peak_torque": "N m",
     "rms_torque": "N m",
     "max_angle": "rad",
     "max_speed": "rad/s",
 }
+"""Unit of each limit."""
 PAPER_INPUTS: tuple[str, ...] = tuple(REFERENCE_AMPLITUDES)
+"""The paper's reference inputs, which :func:`paper_inputs` scales for comparison with a design."""
 RESCALE_STEPS = 4
 """Fixed-point steps of the torque scale for the angle and speed limits."""
 STEP_GROWTH = 1.5

@@ -21,6 +21,7 @@ from jaxflex.modal import free_hub_modes
 from jaxflex.model import Model
 
 FRF_OUTPUTS = ("tip_acceleration", "joint_angle", "tip_deflection")
+"""Outputs whose frequency response from the joint torque can be computed."""
 
 
 def _params(model: Model, params: Mapping[str, ArrayLike]) -> dict[str, Array]:

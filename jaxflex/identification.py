@@ -39,7 +39,9 @@ from jaxflex.refine import refine as refine_parameters
 from jaxflex.testbed import Testbed
 
 FIT_FORMAT = "jaxflex-fit/1"
+"""Format tag written into, and required of, fit files; bumped when their layout changes."""
 METHODS: tuple[str, ...] = tuple(sorted(STRATEGIES))
+"""The evolutionary methods an identification can use, by name."""
 
 
 # ------------------------------------------------------------------------------ model description

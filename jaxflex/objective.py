@@ -41,8 +41,10 @@ from jaxflex.parameters import ParameterSpace, ParameterSpec, Params
 from jaxflex.simulation import OUTPUT_NAMES, simulate_core
 
 DEFAULT_CHANNELS: tuple[str, ...] = ("joint_angle", "tip_acceleration")
+"""Output channels the objective fits unless told otherwise: joint angle, tip acceleration."""
 
 Records = Dataset | Record | Iterable[Record]
+"""What functions that take measurements accept: a data set, one record or records."""
 
 
 def as_dataset(records: Records) -> Dataset:

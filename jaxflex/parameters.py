@@ -27,6 +27,7 @@ import numpy as np
 from jaxtyping import Array, ArrayLike, Float
 
 Params = dict[str, Array]
+"""A parameter set: name → value (SI units; a leading axis for a population)."""
 
 UNIT_SLACK = 1e-9
 """How far outside ``[0, 1]`` a unit-box coordinate may come back from a round trip through

@@ -54,14 +54,17 @@ DEFAULT_CUTOFF_HZ = 4.0
 DEFAULT_DEADBAND = 0.05
 """Joint speed (rad/s) below which the joint is taken to stick."""
 COLUMNS: tuple[str, ...] = ("J_tot", "b_v", "tau_c", "offset")
+"""Unknowns: total inertia (kg m²), viscous (N m s), Coulomb friction and offset (N m)."""
 CONSTRAINTS: dict[str, str] = {
     "J_tot": "J_h >= 0 (J_tot >= rhoA L^3/3)",
     "b_v": "b_v >= 0",
     "tau_c": "tau_c >= 0",
 }
+"""The physical bound each unknown must satisfy, as text for the report."""
 _MIN_SAMPLES_PER_COLUMN = 10
 
 Records = Dataset | Record | Iterable[Record]
+"""What the rigid-body fit accepts: a data set, one record or records."""
 
 
 @dataclass(frozen=True)

@@ -5,12 +5,14 @@ from __future__ import annotations
 import numpy as np
 from jaxtyping import Float
 
-#: Reference inputs of the testbed: shape name → default amplitude (N m), on 0 ≤ t < 0.3 s.
 REFERENCE_AMPLITUDES: dict[str, float] = {"triangular": 0.49, "pulse": 0.25, "half_sine": 0.39}
+"""Reference inputs of the testbed: shape name → default amplitude (N m), on 0 ≤ t < 0.3 s."""
 REFERENCE_WIDTH = 0.3
-#: Default amplitude of the excitation signals (N m).
+"""Duration (s) of the reference inputs; the torque is zero after it."""
 EXCITATION_AMPLITUDES: dict[str, float] = {"chirp": 0.05, "multisine": 0.05}
+"""Default amplitude of the excitation signals (N m)."""
 INPUT_NAMES: tuple[str, ...] = (*REFERENCE_AMPLITUDES, *EXCITATION_AMPLITUDES)
+"""Every input shape :func:`reference_input` knows: the references, then the excitations."""
 
 
 def time_grid(duration: float = 2.0, dt: float = 1e-3) -> Float[np.ndarray, " n"]:

@@ -27,6 +27,7 @@ from jaxflex.model import Model
 from jaxflex.objective import Records, as_dataset
 
 STUDY_FORMAT = "jaxflex-study/1"
+"""Format tag written into study files; bumped when their layout changes."""
 
 
 @dataclass(frozen=True)

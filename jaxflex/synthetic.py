@@ -33,8 +33,10 @@ ENCODER_STEP = 2.0 * math.pi / ENCODER_COUNTS
 ACCELEROMETER_SIGMA = 0.05
 """Standard deviation of the accelerometer noise (m/s²)."""
 DEFAULT_INPUTS: tuple[str, ...] = ("triangular", "pulse", "half_sine")
+"""The inputs of the synthetic records unless told otherwise: the testbed's three references."""
 
 Seed = int | Sequence[int]
+"""A random seed: one integer, or a sequence of them (NumPy's ``SeedSequence`` entropy)."""
 
 
 def _check_seed(seed: Seed) -> Seed:

@@ -78,3 +78,4 @@ class Testbed(eqx.Module):
 
 
 TESTBED_SETTINGS: tuple[str, ...] = tuple(f.name for f in fields(Testbed))
+"""Names of the :class:`Testbed` settings (geometry, sampling, mesh) ``--set`` can change."""

@@ -88,6 +88,18 @@ def test_device_count_setting_is_validated(monkeypatch):
     assert default_host_devices() == 5
 
 
+def test_a_candidates_reductions_do_not_depend_on_how_many_share_its_device():
+    """XLA would hand large batched reductions to a library kernel (chosen by size) that sums in
+    another order than its own loops; importing jaxflex turns that off, so a candidate's sums
+    are the same bits in a batch of 100 as in one of 40 or alone."""
+    rows = np.random.default_rng(5).normal(size=(100, 3, 20))  # candidates, records, samples
+    squares = jax.jit(jax.vmap(jax.vmap(lambda r: r @ r)))
+    whole = np.asarray(squares(rows))
+    for start, stop in ((0, 40), (40, 100), (7, 8)):
+        part = np.asarray(squares(rows[start:stop]))
+        assert part.tobytes() == whole[start:stop].tobytes(), (start, stop)
+
+
 DEVICE_COUNT_CHECKS = textwrap.dedent(
     """
     import hashlib

@@ -12,6 +12,7 @@ import argparse
 from jaxflex.cli import UsageError
 
 HELP = "list the public real-rig data sets, or fetch one and write its records as CSV"
+"""One-line summary of ``jaxflex datasets`` in the command list."""
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:

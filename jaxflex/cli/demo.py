@@ -7,6 +7,7 @@ import argparse
 from jaxflex.cli._checks import seed
 
 HELP = "run the demo on synthetic records: identify on one input, validate on the others"
+"""One-line summary of ``jaxflex demo`` in the command list."""
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:

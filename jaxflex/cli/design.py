@@ -30,6 +30,7 @@ from jaxflex.cli._checks import (
 DEFAULT_RMS_FRACTION = 0.5
 """Default ``--rms-torque`` as a fraction of ``--max-torque``."""
 HELP = "design an excitation torque that maximises the information about the parameters"
+"""One-line summary of ``jaxflex design`` in the command list."""
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:

@@ -33,6 +33,7 @@ from jaxflex.cli._options import add_fit_options, add_record_options, fit_keywor
 from jaxflex.cli.identify import sources
 
 HELP = "find the physical effects the model is missing: score tests, add, refit, report"
+"""One-line summary of ``jaxflex discover`` in the command list."""
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:

@@ -23,6 +23,7 @@ from jaxflex.cli._options import add_fit_options, add_record_options, fit_keywor
 from jaxflex.cli._processes import add_process_arguments, enter
 
 HELP = "identify the parameters from measured records (DE, GA or PSO + refinement)"
+"""One-line summary of ``jaxflex identify`` in the command list."""
 
 
 def add_search_arguments(p: argparse.ArgumentParser) -> None:

@@ -27,6 +27,7 @@ from jaxflex.cli.identify import add_search_arguments, check_finite_cost, source
 MAX_SEEDS = 1000
 """More seeds than this is a typing error (``0-1000000``), not a study."""
 HELP = "run each evolutionary method from several seeds and tabulate the spread (paper study)"
+"""One-line summary of ``jaxflex study`` in the command list."""
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:

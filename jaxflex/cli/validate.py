@@ -26,6 +26,7 @@ from jaxflex.cli.identify import sources
 from jaxflex.comparison import DEFAULT_T_END, FRFSettings, compare
 
 HELP = "compare a fitted model with measured records: metrics table and figures"
+"""One-line summary of ``jaxflex validate`` in the command list."""
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:

@@ -46,6 +46,7 @@ DATASETS: dict[str, DatasetInfo] = {
     m.SOURCE.name: DatasetInfo(m.SOURCE.name, m.SOURCE.description, m.SOURCE, dict(m.RECORDS))
     for m in _MODULES
 }
+"""Every public real-rig data set by name: description, source and its records."""
 
 
 def _module(name: str) -> ModuleType:

@@ -39,10 +39,12 @@ SOURCE = Source(
         "sampling period, units and geometry unpublished"
     ),
 )
+"""Origin of the record: repository at a pinned commit, files with SHA-256, licence."""
 
 RECORDS: dict[str, str] = {
     "sweep": "periodic sine sweep, 1024 samples; time in samples (period unpublished)",
 }
+"""The records of this data set by name, with what each holds."""
 
 
 def convert(files: dict[str, Path]) -> dict[str, Record]:

@@ -64,17 +64,20 @@ SOURCE = Source(
         "encoder and root strain gauge (calibrated as a link deflection angle)"
     ),
 )
+"""Origin of the records: repository at a pinned commit, files with SHA-256, licence."""
 
 RECORDS: dict[str, str] = {
     "square_wave": "closed loop, ±30° rate-limited square-wave set point; 500 Hz, 5 s (fit)",
     "random_985": "closed loop, band-limited random reference; 1 kHz, 60 s (held out)",
 }
+"""The records of this data set by name, with what each holds."""
 
 CHANNELS = (
     "voltage V: motor voltage command (measured); joint_angle rad: SRV02 encoder, 4096 "
     "counts/rev; deflection_angle rad: root strain gauge calibrated as the link deflection "
     "angle; reference rad: the position loop's reference"
 )
+"""The channels of its records, with units and sensors."""
 
 
 def _matrix(path: Path, variable: str, rows: int) -> np.ndarray:

@@ -20,6 +20,7 @@ CHANNELS: tuple[str, ...] = OUTPUT_COLUMNS
 
 
 UNITS: dict[str, str] = dict(KNOWN_UNITS)
+"""Unit of each output channel, for the reports."""
 
 
 NOISE_SOURCES: tuple[str, ...] = ("given", "quantisation", "estimated", "floor")

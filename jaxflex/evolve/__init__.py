@@ -20,7 +20,9 @@ from jaxflex.evolve.ga import GA
 from jaxflex.evolve.pso import PSO, PSOState
 
 STRATEGIES: dict[str, type[AbstractStrategy]] = {"de": DE, "ga": GA, "pso": PSO}
+"""The evolutionary strategies by name."""
 PRESETS = ("paper", "default")
+"""Named settings of every strategy: the paper's, or jaxflex's defaults."""
 
 
 def get_strategy(name: str, preset: str = "paper", **overrides: Any) -> AbstractStrategy:

@@ -22,6 +22,7 @@ from jaxflex.evolve._base import (
 )
 
 VARIANTS = ("rand1bin", "best1bin")
+"""Mutation schemes of :class:`DE`: from a random base vector, or from the best one."""
 
 
 class DE(AbstractStrategy):

@@ -26,7 +26,9 @@ from jaxflex.plots._style import MARK, MEASURED, MODEL, RESIDUAL, new_figure, sa
 from jaxflex.simulation import Outputs
 
 TIME_FIGSIZE = (8.0, 6.5)
+"""Default size (inches) of the time-domain comparison figure."""
 FRF_FIGSIZE = (8.0, 6.0)
+"""Default size (inches) of the frequency-response comparison figure."""
 
 
 def plot_time(

@@ -20,7 +20,9 @@ from jaxflex.design import CRITERIA, DesignResult
 from jaxflex.plots._style import MARK, MEASURED, MODEL, new_figure, style
 
 DESIGN_FIGSIZE = (8.0, 7.0)
+"""Default size (inches) of the designed-input figure."""
 INTERVALS_FIGSIZE = (10.0, 4.5)
+"""Default size (inches) of the predicted-intervals figure."""
 _INPUT_COLOURS = ("tab:blue", "tab:orange", "tab:green", "tab:red", "tab:purple", "tab:brown")
 
 

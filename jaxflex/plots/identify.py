@@ -23,6 +23,7 @@ from jaxflex.identification import Fit
 from jaxflex.plots._style import MARK, MODEL, RESIDUAL, figure_axes, new_figure
 
 METHOD_COLOURS = {"de": "tab:blue", "ga": "tab:green", "pso": "tab:purple"}
+"""Colour of each evolutionary method in the convergence figures."""
 
 
 def _histories(runs) -> dict[str, list[np.ndarray]]:
