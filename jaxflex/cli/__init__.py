@@ -30,6 +30,7 @@ COMMANDS: tuple[str, ...] = (
 )
 """The sub-commands of ``jaxflex``, in the order the help lists them."""
 EXIT_OK, EXIT_BUG, EXIT_USAGE, EXIT_INTERRUPTED, EXIT_TERMINATED = 0, 1, 2, 130, 143
+"""Exit codes: success, an internal error, bad input or options, Ctrl-C (SIGINT), SIGTERM."""
 
 
 class UsageError(ValueError):

@@ -156,9 +156,11 @@ def _block_impl(problem: Problem, phi, logflag, tangents):
 
 
 jacobian_block = eqx.filter_jit(_block_impl)
+"""Compiled residual Jacobian of a block of candidate columns (one compile per problem shape)."""
 
 
 forward = eqx.filter_jit(lambda problem, x: problem.predicted(x))
+"""Compiled prediction of a problem at the parameter vector ``x``."""
 
 
 BLOCK = 8

@@ -44,8 +44,8 @@ def _collect() -> dict[str, type[Effect]]:
     return found
 
 
-#: Effect name → class, for every effect in the library.
 EFFECTS: dict[str, type[Effect]] = _collect()
+"""Effect name → class, for every effect in the library."""
 
 
 def get_effect(name: str, **kwargs) -> Effect:

@@ -10,7 +10,8 @@ from jaxtyping import Array, Float
 from jaxflex.effects._base import Effect, Structure
 from jaxflex.parameters import ParameterSpec, Params
 
-GRAVITY = 9.81  # m/s²
+GRAVITY = 9.81
+"""Standard gravitational acceleration, m/s²."""
 
 
 class Gravity(Effect):

@@ -11,8 +11,8 @@ from jaxtyping import Array, Float
 from jaxflex.effects._base import Effect
 from jaxflex.parameters import ParameterSpec, Params
 
-#: ``exp(−h/T)`` is taken as exactly 0 below ``T = h/700`` (it is < 1e-304 there).
 _UNDERFLOW = 700.0
+"""``exp(−h/T)`` is taken as exactly 0 below ``T = h/700`` (it is < 1e-304 there)."""
 
 
 class MotorLag(Effect):

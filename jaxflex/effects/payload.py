@@ -19,6 +19,7 @@ MASS = ParameterSpec(
     description="payload mass at the tip",
     null=0.0,
 )
+"""The payload's mass (its default bounds fit the reference strip; ``bounds=`` widens them)."""
 ROTARY_INERTIA = ParameterSpec(
     "J_p",
     "kg m^2",
@@ -28,6 +29,7 @@ ROTARY_INERTIA = ParameterSpec(
     description="payload inertia about its own centre",
     null=0.0,
 )
+"""The payload's rotary inertia about its own centre (a rotary payload only)."""
 
 
 class _PayloadParameters:

@@ -12,8 +12,8 @@ from jaxtyping import Array
 from jaxflex.effects._base import Effect
 from jaxflex.parameters import ParameterSpec, Params
 
-#: Stribeck velocities (rad/s) that :meth:`Stribeck.grid` profiles over.
 STRIBECK_VELOCITY_GRID: tuple[float, ...] = (0.03, 0.1, 0.3)
+"""Stribeck velocities (rad/s) that :meth:`Stribeck.grid` profiles over."""
 
 
 class Stribeck(Effect):
