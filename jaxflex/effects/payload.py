@@ -19,7 +19,8 @@ MASS = ParameterSpec(
     description="payload mass at the tip",
     null=0.0,
 )
-"""The payload's mass (its default bounds fit the reference strip; ``bounds=`` widens them)."""
+"""The payload's mass; its default bounds suit the reference strip (``--bound m_p=LO:HI``
+widens them)."""
 ROTARY_INERTIA = ParameterSpec(
     "J_p",
     "kg m^2",
