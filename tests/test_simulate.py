@@ -266,3 +266,36 @@ def test_friction_solve_stops_well_before_its_limit():
             assert int(count) < simulator.MAX_FRICTION_ITERATIONS // 2, (target, guess, count)
         _, count = simulator._bracketed_newton(with_slope(target), 0.0, target, 0.999 * target)
         assert int(count) <= 12, (target, count)
+
+
+@pytest.mark.parametrize("name", ["triangular", "pulse", "half_sine"])
+def test_truncated_modes_keep_the_accuracy_against_radau(name):
+    """Eight advanced modes plus the others' static response: the tolerances of the full model."""
+    _, torque = reference_input(name)
+    reference = radau_reference(Model(), REFERENCE, torque, 1e-3)
+    out = simulate(Model(n_modes=8), REFERENCE, torque)
+    assert nrmse(reference[0], np.asarray(out.joint_angle)) <= 0.05
+    assert nrmse(reference[1], np.asarray(out.tip_acceleration)) <= 0.5
+    assert nrmse(reference[2], np.asarray(out.joint_velocity)) <= 0.5
+
+
+def test_static_response_of_truncated_modes():
+    """One advanced mode: the others' quasi-static share keeps the deflection and the strain of
+    the full model (to 0.5 %); stations at the tip and clamp read those outputs."""
+    _, torque = reference_input("triangular")
+    full = simulate(Model(), REFERENCE, torque)
+    length = Model().testbed.length
+    truncated = simulate(Model(n_modes=1, stations=(0.0, length)), REFERENCE, torque)
+    for name in ("tip_deflection", "root_strain", "joint_angle"):
+        full_value, value = np.asarray(getattr(full, name)), np.asarray(getattr(truncated, name))
+        assert nrmse(full_value, value) <= 0.5, name
+    half_thickness = 0.5 * Model().testbed.thickness
+    for station, output in (
+        (truncated.station_deflection[:, 1], truncated.tip_deflection),
+        (truncated.station_acceleration[:, 1], truncated.tip_acceleration),
+        (half_thickness * truncated.station_curvature[:, 0], truncated.root_strain),
+    ):  # equal up to round-off (the rows are summed in other orders)
+        scale = float(np.max(np.abs(output)))
+        np.testing.assert_allclose(station, output, rtol=0, atol=1e-12 * scale)
+    with pytest.raises(ValueError, match="n_modes must be None or an int from 1 to 20"):
+        Model(n_modes=21)
