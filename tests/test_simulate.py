@@ -299,3 +299,29 @@ def test_static_response_of_truncated_modes():
         np.testing.assert_allclose(station, output, rtol=0, atol=1e-12 * scale)
     with pytest.raises(ValueError, match="n_modes must be None or an int from 1 to 20"):
         Model(n_modes=21)
+
+
+def test_warm_start_lands_on_the_root_while_sliding():
+    """From the previous step's velocity, friction and slope, one Newton step (no evaluation)
+    starts the solve within round-off of the root while sliding, so the solve stops at its first
+    residual; near zero velocity it still converges to brentq's root."""
+    simulator = sys.modules["jaxflex.simulation"]
+    gain = 0.05
+    for previous, change in ((0.5, 1e-4), (-2.0, -3e-3), (0.3, -1e-3), (2e-3, -3e-3)):
+        target = previous + gain * float(_base_friction(previous)) + change
+        f, slope = jax.jvp(_base_friction, (jnp.float64(previous),), (1.0,))
+        guess = simulator._warm_start(jnp.float64(previous), f, slope, target, gain)
+
+        def residual(v, target=target):
+            f, df = jax.jvp(_base_friction, (v,), (1.0,))
+            return v + gain * f - target, 1.0 + gain * df, abs(v) + abs(gain * f) + abs(target)
+
+        lo, hi = min(0.0, target), max(0.0, target)
+        root, count = simulator._bracketed_newton(residual, lo, hi, guess)
+        expected = brentq(
+            lambda v, target=target: v + gain * float(_base_friction(v)) - target,
+            lo, hi, xtol=1e-300, rtol=4 * np.finfo(float).eps,
+        )
+        assert float(root) == pytest.approx(expected, rel=1e-14, abs=0)
+        if abs(previous) >= 30 * 0.01:  # far from the smooth-Coulomb knee (ω_s = 0.01)
+            assert int(count) == 1, (previous, change, count)
