@@ -3,8 +3,9 @@
 Measures what limits the simulator's throughput (``benchmarks/simulate.py`` reports the
 throughput itself): the number of XLA kernels inside the compiled time loop, and the run time
 of a plain one-device vmap (best of 5) as the population, the number of finite elements and the
-cap on the friction solve's iterations change. A straight-line fit of time against population
-separates the fixed cost of a step (kernel launches) from the cost per candidate.
+cap on the friction solve's iterations change, and how many iterations that solve takes. A
+straight-line fit of time against population separates the fixed cost of a step (kernel
+launches) from the cost per candidate.
 Writes ``benchmarks/results/profile_simulate.json``.
 """
 
@@ -69,6 +70,33 @@ def kernels_per_sample(model: Model, torque) -> dict[str, int]:
     return counts
 
 
+def friction_iterations(model: Model, torque, population: int = 10) -> dict[str, float]:
+    """Iterations of the friction solve per sub-step: per candidate, and the most in the
+    population (what a vmapped loop runs), recorded by a host callback in each solve."""
+    counts = []
+    solve = simulator._bracketed_newton
+
+    def counted(residual, lo, hi, guess):
+        root, count = solve(residual, lo, hi, guess)
+        jax.debug.callback(lambda c: counts.append(int(c)), count)
+        return root, count
+
+    simulator._bracketed_newton = counted
+    try:
+        run, params = compiled_batch(model, population, torque)
+        run(params).joint_angle.block_until_ready()
+        jax.effects_barrier()
+    finally:
+        simulator._bracketed_newton = solve
+    per_step = np.asarray(counts).reshape(-1, population)  # the callback runs lane by lane
+    return {
+        "population": population,
+        "mean_per_candidate": float(per_step.mean()),
+        "max_per_candidate": int(per_step.max()),
+        "mean_of_population_max": float(per_step.max(axis=1).mean()),
+    }
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--out", default=str(RESULTS))
@@ -97,6 +125,14 @@ def main() -> None:
         per_mesh[n_el] = best_time(Model(testbed=Testbed(n_elements=n_el)), 100, torque)
         print(f"n_el {n_el:2d} ({2 * n_el} modes), population 100: {per_mesh[n_el] * 1e3:.1f} ms")
 
+    iterations = friction_iterations(model, torque)
+    print(
+        f"friction iterations per sub-step (population {iterations['population']}): "
+        f"{iterations['mean_per_candidate']:.2f} per candidate (at most "
+        f"{iterations['max_per_candidate']}), {iterations['mean_of_population_max']:.2f} per "
+        "vmapped loop"
+    )
+
     per_limit = {}
     default = simulator.MAX_FRICTION_ITERATIONS
     try:  # the friction solve stops at round-off: a lower cap only matters if it is reached
@@ -120,6 +156,7 @@ def main() -> None:
             "time_vs_population_s": dict(zip(map(str, populations), per_population, strict=True)),
             "linear_fit": {"fixed_s": intercept, "per_candidate_s": slope},
             "time_vs_elements_at_population_100_s": {str(k): v for k, v in per_mesh.items()},
+            "friction_iterations_per_substep": iterations,
             "time_vs_friction_iteration_cap_at_population_100_s": {
                 str(k): v for k, v in per_limit.items()
             },

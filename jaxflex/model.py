@@ -24,7 +24,9 @@ class Model(eqx.Module):
     ``n_substeps`` integrator steps are taken per sample interval; see :mod:`jaxflex.simulation`.
     ``base`` holds the specs (bounds, reference values) of the six base parameters, ``drive``
     turns the logged input into hub torque (:mod:`jaxflex.drives`); a :class:`~jaxflex.arm.Arm`
-    sets both for a real rig.
+    sets both for a real rig. ``n_modes`` advances only that many of the lowest flexible modes
+    and adds the others' quasi-static response (default: all modes; see
+    :mod:`jaxflex.simulation`).
     """
 
     testbed: Testbed = Testbed()
@@ -33,10 +35,19 @@ class Model(eqx.Module):
     base: tuple[ParameterSpec, ...] = eqx.field(static=True, default=BASE_PARAMETERS)
     drive: Drive = TorqueDrive()
     stations: tuple[float, ...] = eqx.field(static=True, default=())
+    n_modes: int | None = eqx.field(static=True, default=None)
 
     def __check_init__(self) -> None:
         if not isinstance(self.n_substeps, int) or self.n_substeps < 1:
             raise ValueError(f"n_substeps must be an int >= 1, got {self.n_substeps!r}")
+        flexible = 2 * self.testbed.n_elements
+        if self.n_modes is not None and not (
+            isinstance(self.n_modes, int) and 1 <= self.n_modes <= flexible
+        ):
+            raise ValueError(
+                f"n_modes must be None or an int from 1 to {flexible} (the flexible modes of "
+                f"{self.testbed.n_elements} elements), got {self.n_modes!r}"
+            )
         names = [e.name for e in self.effects]
         for effect in self.effects:
             if not isinstance(effect, Effect):
@@ -75,6 +86,11 @@ class Model(eqx.Module):
         return dataclasses.replace(
             self, effects=tuple(e for e in self.effects if e.name not in drop)
         )
+
+    @property
+    def advanced_modes(self) -> int:
+        """How many flexible modes the simulator advances in time (the rest quasi-statically)."""
+        return 2 * self.testbed.n_elements if self.n_modes is None else self.n_modes
 
     def station_rows(self) -> tuple[np.ndarray, np.ndarray]:
         """Rows giving ``w(x_k)`` and ``w''(x_k)`` at the stations, ``(k, n)`` each (NumPy)."""

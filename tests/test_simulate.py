@@ -12,6 +12,7 @@ from reference_solver import radau_reference
 from scipy.optimize import brentq
 
 import jaxflex
+from jaxflex.design import fourier_basis
 from jaxflex.frequency_response import frf, natural_frequencies
 from jaxflex.model import Model
 from jaxflex.signals import reference_input
@@ -110,6 +111,20 @@ def test_accuracy_against_radau(name):
     assert nrmse(reference[2], np.asarray(out.joint_velocity)) <= 0.5
     # the paper's test condition: each reference input moves the joint to about 80 degrees
     assert 70.0 < np.degrees(float(out.joint_angle[-1])) < 90.0
+
+
+def test_accuracy_against_radau_on_a_designed_input():
+    """A designed input (jaxflex.design's Fourier basis up to 20 Hz, seeded coefficients) changes
+    the torque at every sample, unlike the paper's three: the same tolerances hold."""
+    model = Model()
+    basis = fourier_basis(1.0, 1e-3, harmonics=20, ramp=0.1)
+    shape = np.random.default_rng(0).standard_normal(basis.shape[0]) @ basis
+    torque = 0.3 * shape / np.max(np.abs(shape))
+    reference = radau_reference(model, REFERENCE, torque, 1e-3)
+    out = simulate(model, REFERENCE, torque)
+    assert nrmse(reference[0], np.asarray(out.joint_angle)) <= 0.05
+    assert nrmse(reference[1], np.asarray(out.tip_acceleration)) <= 0.5
+    assert nrmse(reference[2], np.asarray(out.joint_velocity)) <= 0.5
 
 
 def test_energy_balance_without_dissipation():
@@ -266,3 +281,62 @@ def test_friction_solve_stops_well_before_its_limit():
             assert int(count) < simulator.MAX_FRICTION_ITERATIONS // 2, (target, guess, count)
         _, count = simulator._bracketed_newton(with_slope(target), 0.0, target, 0.999 * target)
         assert int(count) <= 12, (target, count)
+
+
+@pytest.mark.parametrize("name", ["triangular", "pulse", "half_sine"])
+def test_truncated_modes_keep_the_accuracy_against_radau(name):
+    """Eight advanced modes plus the others' static response: the tolerances of the full model."""
+    _, torque = reference_input(name)
+    reference = radau_reference(Model(), REFERENCE, torque, 1e-3)
+    out = simulate(Model(n_modes=8), REFERENCE, torque)
+    assert nrmse(reference[0], np.asarray(out.joint_angle)) <= 0.05
+    assert nrmse(reference[1], np.asarray(out.tip_acceleration)) <= 0.5
+    assert nrmse(reference[2], np.asarray(out.joint_velocity)) <= 0.5
+
+
+def test_static_response_of_truncated_modes():
+    """One advanced mode: the others' quasi-static share keeps the deflection and the strain of
+    the full model (to 0.5 %); stations at the tip and clamp read those outputs."""
+    _, torque = reference_input("triangular")
+    full = simulate(Model(), REFERENCE, torque)
+    length = Model().testbed.length
+    truncated = simulate(Model(n_modes=1, stations=(0.0, length)), REFERENCE, torque)
+    for name in ("tip_deflection", "root_strain", "joint_angle"):
+        full_value, value = np.asarray(getattr(full, name)), np.asarray(getattr(truncated, name))
+        assert nrmse(full_value, value) <= 0.5, name
+    half_thickness = 0.5 * Model().testbed.thickness
+    for station, output in (
+        (truncated.station_deflection[:, 1], truncated.tip_deflection),
+        (truncated.station_acceleration[:, 1], truncated.tip_acceleration),
+        (half_thickness * truncated.station_curvature[:, 0], truncated.root_strain),
+    ):  # equal up to round-off (the rows are summed in other orders)
+        scale = float(np.max(np.abs(output)))
+        np.testing.assert_allclose(station, output, rtol=0, atol=1e-12 * scale)
+    with pytest.raises(ValueError, match="n_modes must be None or an int from 1 to 20"):
+        Model(n_modes=21)
+
+
+def test_warm_start_lands_on_the_root_while_sliding():
+    """From the previous step's velocity, friction and slope, one Newton step (no evaluation)
+    starts the solve within round-off of the root while sliding, so the solve stops at its first
+    residual; near zero velocity it still converges to brentq's root."""
+    simulator = sys.modules["jaxflex.simulation"]
+    gain = 0.05
+    for previous, change in ((0.5, 1e-4), (-2.0, -3e-3), (0.3, -1e-3), (2e-3, -3e-3)):
+        target = previous + gain * float(_base_friction(previous)) + change
+        f, slope = jax.jvp(_base_friction, (jnp.float64(previous),), (1.0,))
+        guess = simulator._warm_start(jnp.float64(previous), f, slope, target, gain)
+
+        def residual(v, target=target):
+            f, df = jax.jvp(_base_friction, (v,), (1.0,))
+            return v + gain * f - target, 1.0 + gain * df, abs(v) + abs(gain * f) + abs(target)
+
+        lo, hi = min(0.0, target), max(0.0, target)
+        root, count = simulator._bracketed_newton(residual, lo, hi, guess)
+        expected = brentq(
+            lambda v, target=target: v + gain * float(_base_friction(v)) - target,
+            lo, hi, xtol=1e-300, rtol=4 * np.finfo(float).eps,
+        )
+        assert float(root) == pytest.approx(expected, rel=1e-14, abs=0)
+        if abs(previous) >= 30 * 0.01:  # far from the smooth-Coulomb knee (ω_s = 0.01)
+            assert int(count) == 1, (previous, change, count)
