@@ -13,6 +13,7 @@ An arm file is TOML (read with the standard library's :mod:`tomllib`)::
     n_elements = 10
     n_substeps = 2
     friction_smoothing = 0.01 # rad/s, smooth-Coulomb velocity scale
+    # n_modes = 8             # advance only the 8 lowest modes (default: every mode)
     [sampling]                # optional, these are the defaults
     dt = 1e-3
     duration = 2.0
@@ -74,7 +75,8 @@ class Arm:
 
     ``fixed`` names base parameters held at their reference value when identifying;
     ``identified_gains`` holds ``(channel, lower, upper)`` for each sensor whose gain is
-    identified (its ``gain`` the reference). The defaults are exactly the reference testbed, so
+    identified (its ``gain`` the reference); ``n_modes`` advances only that many of the lowest
+    modes (:class:`~jaxflex.model.Model`). The defaults are exactly the reference testbed, so
     ``Arm().model()`` is ``Model()``.
     """
 
@@ -86,6 +88,7 @@ class Arm:
     effects: tuple[str, ...] = ()
     identified_gains: tuple[tuple[str, float, float], ...] = ()
     n_substeps: int = 2
+    n_modes: int | None = None
     name: str = "arm"
     description: str = ""
     source: str | None = None
@@ -148,6 +151,7 @@ class Arm:
             self.parameters,
             self.drive,
             stations(self.sensors),
+            self.n_modes,
         )
 
     def sensor(self, channel: str) -> Sensor:
@@ -205,6 +209,7 @@ def arm_from_dict(data: Mapping[str, Any], where: str = "arm") -> Arm:
     simulation = top.table("simulation", required=False)
     n_elements = simulation.integer("n_elements", 10)
     n_substeps = simulation.integer("n_substeps", 2)
+    n_modes = simulation.integer("n_modes") if "n_modes" in simulation.data else None
     omega_s = simulation.number("friction_smoothing", Testbed.omega_s)
     simulation.done()
     sampling = top.table("sampling", required=False)
@@ -240,6 +245,7 @@ def arm_from_dict(data: Mapping[str, Any], where: str = "arm") -> Arm:
         effects=effects,
         identified_gains=gains,
         n_substeps=n_substeps,
+        n_modes=n_modes,
         name=top.string("name"),
         description=top.string("description", ""),
         source=where,

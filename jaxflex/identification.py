@@ -56,7 +56,7 @@ def describe_model(model: Model) -> dict[str, Any]:
             for e in model.effects
         ],
         "n_substeps": model.n_substeps,
-    }
+    } | ({} if model.n_modes is None else {"n_modes": model.n_modes})
 
 
 def build_model(description: Mapping[str, Any]) -> Model:
@@ -68,7 +68,9 @@ def build_model(description: Mapping[str, Any]) -> Model:
         effects = tuple(
             get_effect(e["name"], **e.get("settings", {})) for e in description["effects"]
         )
-        return Model(testbed, effects, int(description["n_substeps"]))
+        return Model(
+            testbed, effects, int(description["n_substeps"]), n_modes=description.get("n_modes")
+        )
     except KeyError as exc:
         raise ValueError(f"model description lacks {exc.args[0]!r}") from None
     except TypeError as exc:
@@ -375,7 +377,8 @@ FIT_SCHEMA = _record({
                                      "settings": _typed(dict, "an object")},
                                     optional=("settings",))),
         "n_substeps": _typed(int, "a whole number"),
-    }),
+        "n_modes": _nullable(_typed(int, "a whole number")),
+    }, optional=("n_modes",)),
     "cost": _number_field(),
     "cost_search": _number_field(),
     "intervals": _object_of(_list_of(_number_field(), length=2)),

@@ -179,3 +179,20 @@ def test_clamp_offset_moves_the_link_away_from_the_axis():
     assert float(far.first_moment[0]) == pytest.approx(rho_a * (r * length + length**2 / 2))
     with pytest.raises(ValueError, match="clamp_offset=-0.01 must be a number >= 0"):
         BED.replace(clamp_offset=-0.01)
+
+
+def test_n_modes_travels_from_the_arm_file_through_a_fit_description(tmp_path):
+    """``[simulation] n_modes`` truncates the arm's model, and a fit's model description
+    rebuilds the same truncation (a saved fit must not silently revert to every mode)."""
+    from jaxflex.identification import build_model, describe_model
+
+    text = (ARMS / "reference.toml").read_text().replace(
+        "[simulation]", "[simulation]\nn_modes = 8", 1
+    )
+    assert "n_modes = 8" in text
+    path = tmp_path / "truncated.toml"
+    path.write_text(text)
+    model = load_arm(path).model()
+    assert model.n_modes == 8
+    assert build_model(describe_model(model)).n_modes == 8
+    assert "n_modes" not in describe_model(load_arm(ARMS / "reference.toml").model())
