@@ -343,7 +343,12 @@ def simulate_core(
     length = model.testbed.clamp_offset + model.testbed.length  # tip radius from the axis
     thickness = model.testbed.thickness
     w = FRICTION_THETA
-    gain = h / J + jnp.sum(p**2 * maps.gv)  # d θ'_{k+1} / d u over one step
+    # per-candidate factors formed once, outside the time loop: left inside, the compiler
+    # re-associates ``h·u/J`` differently in a one-device and a multi-device program
+    inv_j = 1.0 / J
+    h_inv_j = h * inv_j
+    half_h2_inv_j = 0.5 * h * h_inv_j
+    gain = h_inv_j + jnp.sum(p**2 * maps.gv)  # d θ'_{k+1} / d u over one step
     gx_p, gv_p = maps.gx * p, maps.gv * p
     p2 = p**2
 
@@ -357,7 +362,7 @@ def simulate_core(
         """Rigid acceleration, modal force (loads and the off-diagonal mass damping) and the
         forcing ``[u − αJ·pᵀη', loads]`` of the truncated modes without its ``u``."""
         amp = model.load_amplitudes(params, theta, vel)
-        rigid = (amp @ system.load_hub) / J
+        rigid = (amp @ system.load_hub) * inv_j
         flex_velocity = vel - vel_r  # pᵀη'
         modal = amp @ system.load_modal - system.coupling * (p * flex_velocity - p2 * deta)
         return rigid, modal, (-system.coupling * flex_velocity, amp)
@@ -376,8 +381,8 @@ def simulate_core(
         f_end, df_end = friction_and_slope(v_end)
         u = tau - w * f_end - (1.0 - w) * f_vel
         return (
-            theta_r_free + 0.5 * h**2 * u / J,
-            vel_r_free + h * u / J,
+            theta_r_free + half_h2_inv_j * u,
+            vel_r_free + h_inv_j * u,
             eta_free + gx_p * u,
             deta_free + gv_p * u,
             v_end,
@@ -408,7 +413,7 @@ def simulate_core(
 
         theta = theta_r + read(p, share("angle"), eta, forcing)
         ddeta = p * u + modal - system.damping * deta - system.omega2 * eta
-        acc = rigid + u / J + p @ ddeta
+        acc = rigid + u * inv_j + p @ ddeta
         signals = (
             theta,
             length * acc + system.tip @ ddeta,

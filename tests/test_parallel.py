@@ -123,11 +123,11 @@ DEVICE_COUNT_CHECKS = textwrap.dedent(
 )
 
 
-def test_fitness_and_de_are_bit_identical_on_two_and_three_devices():
+def test_fitness_and_de_are_bit_identical_on_one_two_and_three_devices():
     """Per-candidate costs do not depend on how the population is split (or whether it is):
     fitness of several population sizes and a whole DE run hash to the same bytes."""
     digests = []
-    for devices in ("2", "3"):
+    for devices in ("1", "2", "3"):
         env = {**os.environ, "JAXFLEX_HOST_DEVICES": devices, "JAX_PLATFORMS": "cpu"}
         result = subprocess.run(
             [sys.executable, "-c", DEVICE_COUNT_CHECKS],
@@ -135,4 +135,4 @@ def test_fitness_and_de_are_bit_identical_on_two_and_three_devices():
         )
         assert result.returncode == 0, result.stderr[-3000:]
         digests.append(result.stdout.split()[-1])
-    assert digests[0] == digests[1]
+    assert digests[0] == digests[1] == digests[2], digests
