@@ -1,10 +1,15 @@
 """Gradient refinement of an identified parameter set, and how well each parameter is known.
 
 Refinement
-    Levenberg–Marquardt (``optimistix``) on the residual vector of an :class:`Objective`, in the
-    unconstrained coordinates ``z = logit(u)`` so that every iterate respects the bounds. The
-    Jacobian is built by forward-mode AD (a handful of parameters, thousands of residuals). The
-    refined point is accepted only if its cost is finite and lower than at the start.
+    :func:`bounded_least_squares`: optimistix's Levenberg–Marquardt (trust region, QR solve of
+    the damped system) with a descent that respects box bounds (:class:`BoxedDampedNewton`: a
+    parameter on a bound that the gradient pushes outwards is held there for the step, each
+    step is cut back into the box), and a dense forward-mode Jacobian (:func:`dense_jacobian`).
+    :func:`refine` runs it on the objective's residuals in the unit box of the search (it was
+    optimistix in ``z = logit(u)``, where a parameter ending on its bound drives ``z`` to
+    infinity). The fitted set is a boolean mask, so one compilation serves every fitted set of
+    the same size. A refined point is kept only if its cost is finite and lower than at the
+    start.
 
 Bounded Levenberg–Marquardt
     :func:`bounded_levenberg_marquardt` (NumPy, active-set projection on the bounds) refits
@@ -49,10 +54,11 @@ from dataclasses import dataclass, field
 import equinox as eqx
 import jax
 import jax.numpy as jnp
+import lineax as lx
 import numpy as np
 import optimistix as optx
 from jax.scipy.special import ndtri
-from jaxtyping import Array, ArrayLike, Float
+from jaxtyping import Array, ArrayLike, Bool, Float
 
 from jaxflex.objective import Objective
 
@@ -155,18 +161,204 @@ def _twice(x):
     return x, x
 
 
-def _solve(objective: Objective, z0: Array, rtol: float, atol: float, max_steps: int):
-    residuals = dense_jacobian(objective.unconstrained_residuals)
-    solver = optx.LevenbergMarquardt(rtol=rtol, atol=atol)
-    sol = optx.least_squares(
-        lambda z, _: residuals(z), solver, z0, max_steps=max_steps, throw=False
+Residuals = Callable[[Array, object], Array]
+"""``residuals(p, args)``: the residual vector at the solver coordinates ``p``."""
+
+
+class _BoxedStep(eqx.Module):
+    """``(J ŷ, √λ D ŷ)`` with the held coordinates of ``ŷ`` zeroed: the damped least-squares
+    operator of the free coordinates (``D`` the column norms of ``J``)."""
+
+    jac: lx.AbstractLinearOperator
+    held: Bool[Array, " d"]
+    norms: Float[Array, " d"]
+    damping: Float[Array, ""]
+
+    def __call__(self, v):
+        return self.jac.mv(jnp.where(self.held, 0.0, v)), jnp.sqrt(self.damping) * self.norms * v
+
+
+FIRST_DAMPING = 1e-3
+"""``λ`` of the first step with Marquardt's damping (relative to ``diag(JᵀJ)``; the trust
+region scales it after): close to a Gauss–Newton step."""
+
+
+class _BoxState(eqx.Module):
+    y: Float[Array, " d"]
+    f_info: optx.FunctionInfo.ResidualJac
+    held: Bool[Array, " d"]
+    norms: Float[Array, " d"]
+
+
+class BoxedDampedNewton(optx.AbstractDescent):
+    """optimistix's damped Newton (Levenberg–Marquardt) descent on ``lower ≤ y ≤ upper``.
+
+    A coordinate on a bound that the gradient ``Jᵀr`` pushes outwards is held there for the
+    step (its column leaves the damped system), and the step is cut back into the box. The
+    trust-region search then judges the step actually taken. The damping is optimistix's
+    ``λ I`` (``λ = 1/step size``, first 1), or with ``marquardt`` Marquardt's scale-free
+    ``λ diag(JᵀJ)`` (first ``λ`` :data:`FIRST_DAMPING`): on a cost of millions in coordinates
+    of order one, ``λ I`` takes bare Gauss–Newton steps and, when those fail, stalls.
+    """
+
+    lower: Float[Array, " d"]
+    upper: Float[Array, " d"]
+    marquardt: bool = eqx.field(static=True, default=False)
+    linear_solver: lx.AbstractLinearSolver = lx.QR()
+
+    def init(self, y, f_info_struct):
+        def zero(leaf):
+            shaped = isinstance(leaf, jax.ShapeDtypeStruct)
+            return jnp.zeros(leaf.shape, leaf.dtype) if shaped else leaf
+
+        f_info = jax.tree.map(zero, f_info_struct)
+        return _BoxState(y, f_info, jnp.zeros(y.shape, bool), jnp.ones(y.shape))
+
+    def query(self, y, f_info, state):
+        del state
+        g = f_info.jac.transpose().mv(f_info.residual)
+        held = ((y <= self.lower) & (g > 0)) | ((y >= self.upper) & (g < 0))
+        if not self.marquardt:
+            return _BoxState(y, f_info, held, jnp.ones(y.shape))
+        norms = jnp.linalg.norm(f_info.jac.as_matrix(), axis=0)
+        norms = jnp.maximum(norms, 1e-6 * jnp.max(norms) + jnp.finfo(norms.dtype).tiny)
+        return _BoxState(y, f_info, held, norms)
+
+    def step(self, step_size, state):
+        tiny = step_size <= jnp.finfo(step_size.dtype).eps
+        first = FIRST_DAMPING if self.marquardt else 1.0
+        damping = jnp.where(tiny, jnp.finfo(step_size.dtype).max,
+                            first / jnp.where(tiny, 1, step_size))
+        f_info = state.f_info
+        operator = lx.FunctionLinearOperator(
+            _BoxedStep(f_info.jac, state.held, state.norms, damping), f_info.jac.in_structure()
+        )
+        vector = (f_info.residual, jnp.zeros_like(state.y))
+        sol = lx.linear_solve(operator, vector, self.linear_solver, throw=False)
+        trial = jnp.clip(state.y - jnp.where(state.held, 0.0, sol.value), self.lower, self.upper)
+        return trial - state.y, optx.RESULTS.promote(sol.result)
+
+
+class BoundedLevenbergMarquardt(optx.AbstractGaussNewton):
+    """optimistix's Levenberg–Marquardt (trust-region damping, QR solve of the damped system)
+    with :class:`BoxedDampedNewton` as its descent: every iterate stays in the box."""
+
+    rtol: float
+    atol: float
+    descent: BoxedDampedNewton
+    norm: Callable = optx.max_norm
+    search: optx.ClassicalTrustRegion = eqx.field(default_factory=optx.ClassicalTrustRegion)
+    verbose: Callable = eqx.field(static=True, default=lambda **_: None)
+
+
+STALL_STEPS = 6
+"""With ``ftol``: a solve also stops after this many rejected steps in a row (the trust region
+shrunk 4⁶ ≈ 4,000-fold: the cost no longer falls above round-off)."""
+
+
+def _bounded_solve(residuals: Residuals, args, start, lower, upper, free, rtol, atol, ftol,
+                   max_steps, marquardt=False):
+    """:class:`BoundedLevenbergMarquardt` stepped in a loop that also stops on ``ftol``."""
+    fn = dense_jacobian(lambda y: residuals(jnp.where(free, y, start), args))
+
+    def with_aux(y, _):
+        return fn(y), None
+
+    solver = BoundedLevenbergMarquardt(rtol, atol, BoxedDampedNewton(lower, upper, marquardt))
+    tags = frozenset()
+    state = solver.init(with_aux, start, None, {}, jax.eval_shape(fn, start), None, tags)
+    state, static = eqx.partition(state, eqx.is_array)  # the loop carries arrays only
+
+    def proceed(carry):
+        *_, done, k = carry
+        return ~done & (k < max_steps)
+
+    def step(carry):
+        y, state, cost_start, cost, _, k = carry
+        state = eqx.combine(state, static)
+        y, state, _ = solver.step(with_aux, y, None, {}, state, tags)
+        new_cost = jnp.sum(state.f_info.residual**2)  # at y, the last accepted point
+        accepted = state.num_steps_since_acceptance == 0
+        small = accepted & (k > 0) & (cost - new_cost <= ftol * new_cost)
+        stalled = state.num_steps_since_acceptance >= STALL_STEPS
+        small, stalled = (ftol > 0) & small, (ftol > 0) & stalled
+        converged, _ = solver.terminate(with_aux, y, None, {}, state, tags)
+        cost_start = jnp.where(k == 0, new_cost, cost_start)  # the first step evaluates the start
+        done = converged | small | stalled
+        return y, eqx.filter(state, eqx.is_array), cost_start, new_cost, done, k + 1
+
+    inf = jnp.array(jnp.inf)
+    init = (start, state, inf, inf, jnp.array(False), jnp.array(0))
+    y, state, cost_start, cost, done, steps = jax.lax.while_loop(proceed, step, init)
+    state = eqx.combine(state, static)
+    result = optx.RESULTS.where(done, state.result, optx.RESULTS.nonlinear_max_steps_reached)
+    return jnp.where(free, y, start), result, steps, cost_start, cost
+
+
+_bounded_solve_jit = eqx.filter_jit(_bounded_solve)
+
+
+@dataclass(frozen=True)
+class BoundedSolution:
+    """Outcome of :func:`bounded_least_squares` (costs are ``Σ r²``)."""
+
+    value: np.ndarray
+    cost_start: float
+    cost: float
+    result: str
+    message: str
+    steps: int
+
+
+def bounded_least_squares(
+    residuals: Residuals,
+    args: object,
+    start: ArrayLike,
+    lower: ArrayLike,
+    upper: ArrayLike,
+    *,
+    free: ArrayLike | None = None,
+    rtol: float,
+    atol: float,
+    ftol: float = 0.0,
+    max_steps: int,
+    marquardt: bool = False,
+    solve: Callable | None = None,
+) -> BoundedSolution:
+    """Levenberg–Marquardt (:class:`BoundedLevenbergMarquardt`) of ``residuals(p, args)`` on
+    ``lower ≤ p ≤ upper``.
+
+    ``free`` (default all) marks the fitted coordinates; the others keep their start values
+    (their Jacobian columns vanish). Arrays change nothing compiled: one compilation serves
+    every fitted set, start and box of the same size. It stops on optimistix's ``rtol``/``atol``
+    (step and residuals), after ``max_steps``, or (``ftol > 0``) when an accepted step lowers
+    the cost by less than ``ftol`` of it or :data:`STALL_STEPS` steps in a row are rejected.
+    ``marquardt`` chooses the damping (:class:`BoxedDampedNewton`).
+    ``solve`` is ``_bounded_solve`` compiled ahead by the caller (to time it). The value is the
+    last accepted point if its cost is finite and below the start's, else the start.
+    """
+    solve = _bounded_solve_jit if solve is None else solve
+    p = jnp.asarray(start, dtype=jnp.float64)
+    lower, upper = jnp.asarray(lower, dtype=jnp.float64), jnp.asarray(upper, dtype=jnp.float64)
+    free = jnp.ones(p.shape, bool) if free is None else jnp.asarray(free, dtype=bool)
+    p = jnp.where(free, jnp.clip(p, lower, upper), p)
+    end, result, steps, cost_start, cost = solve(residuals, args, p, lower, upper, free, rtol,
+                                                 atol, ftol, max_steps, marquardt)
+    cost_start, cost = float(cost_start), float(cost)
+    cost_start = cost_start if math.isfinite(cost_start) else math.inf
+    better = math.isfinite(cost) and cost < cost_start
+    return BoundedSolution(
+        value=np.asarray(end if better else p),
+        cost_start=cost_start,
+        cost=cost if better else cost_start,
+        result=_result_name(result),
+        message=optx.RESULTS[result] or "converged",
+        steps=int(steps),
     )
-    cost0 = jnp.sum(residuals(z0) ** 2)
-    cost1 = jnp.sum(residuals(sol.value) ** 2)
-    return sol.value, sol.result, sol.stats["num_steps"], cost0, cost1
 
 
-_solve_jit = eqx.filter_jit(_solve)
+def _unit_residuals(u: Array, objective: Objective) -> Array:
+    return objective.unit_residuals(u)
 
 
 def refine(
@@ -179,10 +371,11 @@ def refine(
 ) -> Refinement:
     """Levenberg–Marquardt from one start (free parameters, physical) or the best of several.
 
-    Each start is refined; the end with the lowest cost is returned, accepted only if it is
-    finite and below the cost of the best start. ``rtol``/``atol`` are optimistix's stopping
-    tolerances (on the step in ``z`` and on the cost); the defaults resolve the parameters far
-    below their statistical uncertainty.
+    Each start is refined by :func:`bounded_least_squares` in the unit box of the search; the
+    end with the lowest cost is returned, accepted only if it is finite and below the cost of
+    the best start. ``rtol``/``atol`` are optimistix's stopping tolerances (on the step in the
+    unit box and on the residuals); the defaults resolve the parameters far below their
+    statistical uncertainty.
     """
     starts = [starts] if isinstance(starts, Mapping) else list(starts)
     if not starts:
@@ -193,35 +386,39 @@ def refine(
         if not (math.isfinite(tol) and tol > 0):
             raise ValueError(f"{label} must be a positive number, got {tol!r}")
     space, names = objective.space, objective.names
-    z_starts = []
+    u_starts = []
     for start in starts:
         missing = [n for n in names if n not in start]
         if missing:
             raise ValueError(f"refinement start lacks parameter(s) {missing}")
-        z_starts.append(space.to_unconstrained({n: start[n] for n in names}))
+        u_starts.append(jnp.clip(space.to_unit({n: start[n] for n in names}), 0.0, 1.0))
+    zeros, ones = jnp.zeros(len(names)), jnp.ones(len(names))
 
     t0 = time.perf_counter()
-    compiled = _solve_jit.lower(objective, z_starts[0], rtol, atol, max_steps).compile()
+    compiled = _bounded_solve_jit.lower(
+        _unit_residuals, objective, u_starts[0], zeros, ones, ones > 0, rtol, atol, 0.0,
+        max_steps, False,
+    ).compile()
     compile_time = time.perf_counter() - t0
     t0 = time.perf_counter()
-    runs = []
-    for z0 in z_starts:
-        z, result, steps, c0, c1 = compiled(objective, z0, rtol, atol, max_steps)
-        runs.append((float(c1) if np.isfinite(float(c1)) else math.inf, z0, z, result, steps, c0))
+    runs = [
+        (u0, bounded_least_squares(_unit_residuals, objective, u0, zeros, ones, rtol=rtol,
+                                   atol=atol, max_steps=max_steps, solve=compiled))
+        for u0 in u_starts
+    ]
     wall_time = time.perf_counter() - t0
 
-    cost_start = min(float(r[5]) for r in runs)
-    best_start = min(runs, key=lambda r: float(r[5]))[1]
-    cost_end, _, z, result, steps, _ = min(runs, key=lambda r: r[0])
+    best_start = min(runs, key=lambda r: r[1].cost_start)
+    _, best = min(runs, key=lambda r: r[1].cost)
     return Refinement(
-        start=_floats(space.from_unconstrained(best_start), names),
-        end=_floats(space.from_unconstrained(z), names),
-        cost_start=cost_start,
-        cost_end=cost_end,
-        accepted=bool(cost_end < cost_start),
-        result=_result_name(result),
-        message=optx.RESULTS[result] or "converged",
-        steps=int(steps),
+        start=_floats(space.from_unit(best_start[0]), names),
+        end=_floats(space.from_unit(best.value), names),
+        cost_start=best_start[1].cost_start,
+        cost_end=best.cost,
+        accepted=bool(best.cost < best_start[1].cost_start),
+        result=best.result,
+        message=best.message,
+        steps=best.steps,
         wall_time=wall_time,
         compile_time=compile_time,
         n_starts=len(starts),
@@ -514,9 +711,13 @@ def _bartlett_meat(scores: np.ndarray, series: np.ndarray, lags: int) -> np.ndar
 
 __all__ = [
     "RESULT_NAMES",
+    "BoundedLevenbergMarquardt",
+    "BoxedDampedNewton",
     "Refinement",
     "Uncertainty",
+    "BoundedSolution",
     "bounded_levenberg_marquardt",
+    "bounded_least_squares",
     "refine",
     "uncertainty",
 ]
