@@ -1,20 +1,62 @@
 """Gradient refinement of an identified parameter set, and how well each parameter is known.
 
-Refinement
-    :func:`bounded_least_squares`: optimistix's Levenberg–Marquardt (trust region, QR solve of
-    the damped system) with a descent that respects box bounds (:class:`BoxedDampedNewton`: a
-    parameter on a bound that the gradient pushes outwards is held there for the step, each
-    step is cut back into the box), and a dense forward-mode Jacobian (:func:`dense_jacobian`).
-    :func:`refine` runs it on the objective's residuals in the unit box of the search (it was
-    optimistix in ``z = logit(u)``, where a parameter ending on its bound drives ``z`` to
-    infinity). The fitted set is a boolean mask, so one compilation serves every fitted set of
-    the same size. A refined point is kept only if its cost is finite and lower than at the
-    start.
+Refinement: one engine
+    :func:`bounded_least_squares` is jaxflex's one gradient refinement: optimistix's
+    Levenberg–Marquardt (trust region, QR solve of the damped system) with a descent that
+    respects box bounds (:class:`BoxedDampedNewton`: a parameter on a bound that the gradient
+    pushes outwards is held there for the step, each step is cut back into the box), and a
+    dense forward-mode Jacobian (:func:`dense_jacobian`: a handful of parameters, thousands of
+    residuals). It serves identification (:func:`refine`: the objective's residuals in the unit
+    box of the search, optimistix's damping ``λ I``; Marquardt's, near Gauss–Newton from the
+    first step, carried the noise-free test's ``b_v`` and ``β`` onto their bounds and stopped
+    there) and discovery (its quantisation-aware likelihood, :mod:`jaxflex.discovery`, with
+    Marquardt's scale-free ``λ diag(JᵀJ)``, as its NumPy solver had): the fitted set
+    is a boolean mask (held parameters keep their start values, their Jacobian columns vanish),
+    so one compilation serves every fitted set of the same size. A refined point is kept only
+    if its cost is finite and lower than at the start.
 
-Bounded Levenberg–Marquardt
-    :func:`bounded_levenberg_marquardt` (NumPy, active-set projection on the bounds) refits
-    discovery's models on its quantisation-aware likelihood; its docstring gives the
-    measurements for which discovery does not use :func:`refine`.
+    It replaced two engines: optimistix in the logit coordinates ``z = logit(u)`` (refine) and a
+    NumPy active-set Levenberg–Marquardt (discovery), which discovery had kept because the
+    logit path compiled once per fitted set (22–28 s each), ran 3.7–4× slower and, with a
+    parameter ending on its bound, used all its steps (``z`` runs off to infinity). The mask
+    removes the recompilations and the box-aware descent holds a bound parameter instead of
+    chasing it. The slowness was steps, not Jacobians (one step of each costs one forward pass
+    with 8 tangents): optimistix's stopping test (the step and every residual within
+    ``rtol``/``atol``) is not met while the cost only changes at round-off, so a fit that had
+    converged in 14 steps ran all 30; the solver is therefore stepped in a loop that also stops
+    on discovery's rule (``ftol``). Discovery needs Marquardt's scale-free damping: with
+    optimistix's ``λ I`` (first ``λ = 1``) on a cost of millions, an added payload stalled at
+    9.96e6 where the NumPy solver reached 141,921. Discovery's solve calls its own compiled
+    Jacobian block back (:func:`bounded_least_squares_of`) rather than compiling the simulator's
+    derivatives a second time (45.6 s cold, against 1.6 s for the solve without them).
+
+    Measured on a busy 2-core CPU (load 8–10), both engines in one process without the
+    persistent compilation cache: discovery on the payload case of ``tests/test_discover.py``
+    (a base refit and the refit with the payload from the test's start, first call compiling
+    and second; then a whole ``discover`` run with a hold-out); identify's refinement from its
+    test start on noisy records (seeds 0 and 1):
+
+    ==================  ===================  ================  =====  =======  ===========
+    engine              case                 cost              steps  compile  run
+    ==================  ===================  ================  =====  =======  ===========
+    NumPy bounded LM    refit, 6 parameters  2930887.89336     27     shared   6.54 s
+    this one            refit, 6 parameters  2930887.89122     28     14 s     3.57 s
+    NumPy bounded LM    + payload, 7         6188.5251549      18     shared   5.06–7.97 s
+    this one            + payload, 7         6188.52515495     17     shared   6.51–9.13 s
+    NumPy bounded LM    discover             5494.61760156     —      —        48.8 s
+    this one            discover             5494.61760015     —      —        39.8 s
+    optimistix, logit   identify, seed 0     4.49728707151e-5  45     37.3 s   4.66 s
+    this one            identify, seed 0     4.49728707155e-5  20     31.7 s   3.69 s
+    optimistix, logit   identify, seed 1     4.38511897969e-5  43     shared   5.97 s
+    this one            identify, seed 1     4.38511897937e-5  31     shared   3.87 s
+    ==================  ===================  ================  =====  =======  ===========
+
+    Costs are what each minimises. "shared": compiled by an earlier row; discovery's Jacobian
+    block (25.7 s cold) is compiled by its score tests anyway. The 14 s of this solver in
+    discovery are 1.8 s for the solve and a second compilation of that block, which JAX makes
+    for the call from the solve's callback thread. A whole ``discover`` run in a fresh process
+    took 122.6 s with the NumPy solver and 136.8 s with this one (not the same moment, so not
+    the same load); a second run in the same process 47.1 s against 33.1 s.
 
 Uncertainty (Gauss–Newton)
     The estimate minimises ``Σ e_i²`` with the objective's own weighting (RMS-normalised
@@ -46,6 +88,7 @@ Uncertainty (Gauss–Newton)
 
 from __future__ import annotations
 
+import itertools
 import math
 import time
 from collections.abc import Callable, Mapping, Sequence
@@ -357,6 +400,57 @@ def bounded_least_squares(
     )
 
 
+System = Callable[[np.ndarray], tuple[np.ndarray, np.ndarray]]
+"""``system(p)``: the residual vector and its Jacobian at ``p``, computed on the host."""
+
+_SYSTEMS: dict[int, System] = {}
+_TOKENS = itertools.count()
+
+
+def _run_system(token, p):
+    r, jac = _SYSTEMS[int(token)](np.asarray(p))
+    return np.asarray(r, dtype=np.float64), np.asarray(jac, dtype=np.float64)
+
+
+def _call_system(p, token, template):
+    shapes = (jax.ShapeDtypeStruct(template.shape, p.dtype),
+              jax.ShapeDtypeStruct(template.shape + p.shape, p.dtype))
+    return jax.pure_callback(_run_system, shapes, token, p, vmap_method="sequential")
+
+
+@jax.custom_jvp
+def _system_residuals(p, token, template):
+    return _call_system(p, token, template)[0]
+
+
+@_system_residuals.defjvp
+def _system_jvp(primals, tangents):
+    r, jac = _call_system(*primals)
+    return r, jac @ tangents[0]
+
+
+def _host_residuals(p: Array, args: tuple) -> Array:
+    return _system_residuals(p, *args)
+
+
+def bounded_least_squares_of(system: System, size: int, start: ArrayLike, lower: ArrayLike,
+                             upper: ArrayLike, **options) -> BoundedSolution:
+    """:func:`bounded_least_squares` of a residual vector (length ``size``) and Jacobian that
+    the caller computes (``system``, called back from the compiled solve).
+
+    The solve compiles without the model in it (a few seconds, once per size) and the
+    caller's own compiled Jacobian serves it: discovery's forward-mode block, which its score
+    tests compile anyway, instead of a second compilation of the simulator's derivatives.
+    """
+    token = next(_TOKENS)
+    _SYSTEMS[token] = system
+    try:
+        args = (jnp.asarray(token), jnp.zeros(size))
+        return bounded_least_squares(_host_residuals, args, start, lower, upper, **options)
+    finally:
+        del _SYSTEMS[token]
+
+
 def _unit_residuals(u: Array, objective: Objective) -> Array:
     return objective.unit_residuals(u)
 
@@ -423,75 +517,6 @@ def refine(
         compile_time=compile_time,
         n_starts=len(starts),
     )
-
-
-# ------------------------------------------------------------------------------ bounded LM
-
-
-def bounded_levenberg_marquardt(
-    system: Callable[[np.ndarray], tuple[np.ndarray, np.ndarray]],
-    phi: np.ndarray,
-    lower: np.ndarray,
-    upper: np.ndarray,
-    *,
-    max_steps: int,
-    rtol: float,
-) -> np.ndarray:
-    """Levenberg–Marquardt in NumPy on the box ``lower ≤ φ ≤ upper`` by active-set projection.
-
-    ``system(φ)`` gives the residual vector and its Jacobian. A parameter on a bound that the
-    gradient pushes outwards is held there for the step; every trial is clipped into the box.
-    Stops after ``max_steps`` Jacobians, when an accepted step lowers the cost by less than
-    ``rtol`` of it, or when the damping exceeds 1e10. Returns the last accepted ``φ`` (the
-    ``phi`` object itself if no step was accepted).
-
-    Discovery refits with it rather than with :func:`refine`, for reasons measured on the
-    payload case of ``tests/test_discover.py`` (2-core CPU, the same quantisation-aware residual
-    in both, optimistix in this module's logit coordinates with :func:`refine`'s tolerances):
-    both reach the same cost (to 9 digits, 6 and 7 parameters), but optimistix compiles once
-    per set of fitted parameters (22–28 s each; a discovery run refits many sets, while the
-    caller's one compiled Jacobian block serves them all), runs 3.7–4× slower once compiled
-    (14.3 s against 3.9 s, 4.9 s against 1.2 s), and with a parameter ending on its bound it
-    used all 100 steps (the logit coordinate runs off to infinity) where this one pins it.
-    """
-    def evaluate(p: np.ndarray) -> tuple[np.ndarray, np.ndarray, float]:
-        r, jac = system(p)
-        cost = float(r @ r)
-        return r, jac, cost if math.isfinite(cost) else math.inf
-
-    lo, hi = lower, upper
-    r, jf, cost = evaluate(phi)
-    lam, nu = 1e-3, 2.0
-    for _ in range(max_steps):
-        g = jf.T @ r
-        a = jf.T @ jf
-        diag = np.maximum(np.diag(a), 1e-12 * max(np.max(np.diag(a)), 1e-300))
-        # parameters on a bound that the gradient pushes outwards stay there this step
-        span = hi - lo
-        pinned = ((phi <= lo + 1e-9 * span) & (g > 0)) | ((phi >= hi - 1e-9 * span) & (g < 0))
-        free = ~pinned
-        step = np.zeros_like(phi)
-        if free.any():
-            sub = np.ix_(free, free)
-            step[free] = np.linalg.solve(a[sub] + lam * np.diag(diag[free]), -g[free])
-        trial = np.clip(phi + step, lo, hi)
-        step = trial - phi
-        predicted = -(2 * step @ g + step @ a @ step)
-        r_t, jf_t, cost_t = evaluate(trial)
-        if cost_t < cost:
-            rho = (cost - cost_t) / predicted if predicted > 0 else 0.0
-            lam *= max(1 / 3, 1 - (2 * rho - 1) ** 3)
-            nu = 2.0
-            small = cost - cost_t <= rtol * cost and lam < 1.0
-            phi, r, jf, cost = trial, r_t, jf_t, cost_t
-            if small:
-                break
-        else:
-            lam *= nu
-            nu *= 2.0
-            if lam > 1e10:
-                break
-    return phi
 
 
 # ------------------------------------------------------------------------------ uncertainty
@@ -716,8 +741,8 @@ __all__ = [
     "Refinement",
     "Uncertainty",
     "BoundedSolution",
-    "bounded_levenberg_marquardt",
     "bounded_least_squares",
+    "bounded_least_squares_of",
     "refine",
     "uncertainty",
 ]

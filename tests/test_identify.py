@@ -22,7 +22,7 @@ from jaxflex.evolve import get_strategy
 from jaxflex.identification import Fit, identify, load_fit
 from jaxflex.model import Model
 from jaxflex.objective import build_objective
-from jaxflex.refine import bounded_least_squares, refine, uncertainty
+from jaxflex.refine import bounded_least_squares, bounded_least_squares_of, refine, uncertainty
 from jaxflex.synthetic import make_records
 
 TRUTH = {k: float(v) for k, v in Model().space.reference().items()}
@@ -217,10 +217,11 @@ def _decay(p, t):
 
 
 def test_bounded_least_squares_solves_box_problems_as_scipy_does():
-    """Against SciPy's bounded solvers: a linear problem with active bounds (BVLS), the same
-    with one parameter held at its start, and a nonlinear decay fit whose rate ends on its
-    upper bound (trust-region reflective). The costs agree to round-off; the parameters to
-    about √ε of their scale, as far as a cost at round-off resolves them."""
+    """Against SciPy's bounded solvers: a linear problem with active bounds (BVLS; also with
+    the Jacobian computed on the host), the same with one parameter held at its start, and a
+    nonlinear decay fit whose rate ends on its upper bound (trust-region reflective). The
+    costs agree to round-off; the parameters to about √ε of their scale, as far as a cost at
+    round-off resolves them."""
     rng = np.random.default_rng(5)
     a, b = rng.normal(size=(40, 5)), 3.0 * rng.normal(size=40)
     lower, upper = -0.2 * np.ones(5), 0.3 * np.ones(5)
@@ -234,6 +235,10 @@ def test_bounded_least_squares_solves_box_problems_as_scipy_does():
     np.testing.assert_allclose(fit.value, ref.x, rtol=0, atol=1e-7)
     assert fit.cost == pytest.approx(2 * ref.cost, rel=1e-12)
     assert fit.cost_start == pytest.approx(float(b @ b), rel=1e-14)
+    # the same solve with the residuals and Jacobian computed on the host (discovery's way)
+    host = bounded_least_squares_of(lambda p: (a @ p - b, a), 40, start, lower, upper, **tight)
+    np.testing.assert_allclose(host.value, fit.value, rtol=0, atol=1e-12)
+    assert host.cost == pytest.approx(fit.cost, rel=1e-14) and host.steps == fit.steps
 
     free = np.array([True, True, False, True, True])
     start[2] = 0.25
