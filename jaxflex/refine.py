@@ -52,11 +52,11 @@ Refinement: one engine
     ==================  ===================  ================  =====  =======  ===========
 
     Costs are what each minimises. "shared": compiled by an earlier row; discovery's Jacobian
-    block (25.7 s cold) is compiled by its score tests anyway. The 14 s of this solver in
-    discovery are 1.8 s for the solve and a second compilation of that block, which JAX makes
-    for the call from the solve's callback thread. A whole ``discover`` run in a fresh process
-    took 122.6 s with the NumPy solver and 136.8 s with this one (not the same moment, so not
-    the same load); a second run in the same process 47.1 s against 33.1 s.
+    block (25.7 s cold) is compiled by its score tests anyway. In the table's run the 14 s of
+    this solver in discovery were 1.8 s for the solve and a second compilation of that block
+    for the solve's callback, which ran under ``jax.default_device``; with that context reset
+    (:func:`bounded_least_squares_of`) a whole ``discover`` run in a fresh process took 80.6 s
+    against 73.2 s with the NumPy solver, a second run 43.0 s against 43.9 s (both at once).
 
 Uncertainty (Gauss–Newton)
     The estimate minimises ``Σ e_i²`` with the objective's own weighting (RMS-normalised
@@ -408,7 +408,10 @@ _TOKENS = itertools.count()
 
 
 def _run_system(token, p):
-    r, jac = _SYSTEMS[int(token)](np.asarray(p))
+    # a callback runs under jax.default_device(its device): reset it, or every jitted function
+    # the system calls compiles a second time for that context
+    with jax.default_device(None):
+        r, jac = _SYSTEMS[int(token)](np.asarray(p))
     return np.asarray(r, dtype=np.float64), np.asarray(jac, dtype=np.float64)
 
 
