@@ -10,8 +10,10 @@ import json
 import math
 
 import equinox as eqx
+import jax.numpy as jnp
 import numpy as np
 import pytest
+import scipy.optimize as so
 
 import jaxflex  # noqa: F401  (float64)
 from jaxflex._io import OutputExistsError
@@ -20,7 +22,7 @@ from jaxflex.evolve import get_strategy
 from jaxflex.identification import Fit, identify, load_fit
 from jaxflex.model import Model
 from jaxflex.objective import build_objective
-from jaxflex.refine import refine, uncertainty
+from jaxflex.refine import bounded_least_squares, bounded_least_squares_of, refine, uncertainty
 from jaxflex.synthetic import make_records
 
 TRUTH = {k: float(v) for k, v in Model().space.reference().items()}
@@ -200,6 +202,63 @@ def test_paper_setting_de_over_the_full_box_recovers_the_truth(clean):
     for name, true in TRUTH.items():
         assert abs(fit.params[name] / true - 1) < 0.005 or name in fit.poorly_identifiable
     assert fit.cost <= fit.cost_search
+
+
+# ------------------------------------------------------------------------ the refinement engine
+
+
+def _linear(p, args):
+    a, b = args
+    return a @ p - b
+
+
+def _decay(p, t):
+    return p[0] * jnp.exp(-p[1] * t) + p[2] - jnp.exp(-3.0 * t) * (1 + 0.1 * jnp.sin(7 * t))
+
+
+def test_bounded_least_squares_solves_box_problems_as_scipy_does():
+    """Against SciPy's bounded solvers: a linear problem with active bounds (BVLS; also with
+    the Jacobian computed on the host), the same with one parameter held at its start, and a
+    nonlinear decay fit whose rate ends on its upper bound (trust-region reflective). The
+    costs agree to round-off; the parameters to about √ε of their scale, as far as a cost at
+    round-off resolves them."""
+    rng = np.random.default_rng(5)
+    a, b = rng.normal(size=(40, 5)), 3.0 * rng.normal(size=40)
+    lower, upper = -0.2 * np.ones(5), 0.3 * np.ones(5)
+    start = np.zeros(5)
+    tight = dict(rtol=1e-12, atol=1e-14, max_steps=100)
+    fit = bounded_least_squares(_linear, (jnp.asarray(a), jnp.asarray(b)), start, lower, upper,
+                                **tight)
+    ref = so.lsq_linear(a, b, (lower, upper), method="bvls", tol=1e-14)
+    assert np.sum(ref.active_mask != 0) >= 2  # the bounds matter
+    assert fit.result == "successful" and fit.steps < 100
+    np.testing.assert_allclose(fit.value, ref.x, rtol=0, atol=1e-7)
+    assert fit.cost == pytest.approx(2 * ref.cost, rel=1e-12)
+    assert fit.cost_start == pytest.approx(float(b @ b), rel=1e-14)
+    # the same solve with the residuals and Jacobian computed on the host (discovery's way)
+    host = bounded_least_squares_of(lambda p: (a @ p - b, a), 40, start, lower, upper, **tight)
+    np.testing.assert_allclose(host.value, fit.value, rtol=0, atol=1e-12)
+    assert host.cost == pytest.approx(fit.cost, rel=1e-14)
+
+    free = np.array([True, True, False, True, True])
+    start[2] = 0.25
+    held = bounded_least_squares(_linear, (jnp.asarray(a), jnp.asarray(b)), start, lower, upper,
+                                 free=free, **tight)
+    ref = so.lsq_linear(a[:, free], b - 0.25 * a[:, 2], (lower[free], upper[free]),
+                        method="bvls", tol=1e-14)
+    assert held.value[2] == 0.25
+    np.testing.assert_allclose(held.value[free], ref.x, rtol=0, atol=1e-7)
+    assert held.cost == pytest.approx(2 * ref.cost, rel=1e-12)
+
+    t = jnp.linspace(0.0, 2.0, 60)
+    lower, upper = np.array([0.1, 0.5, -1.0]), np.array([5.0, 2.5, 1.0])
+    fit = bounded_least_squares(_decay, t, np.array([1.0, 1.0, 0.0]), lower, upper, **tight)
+    ref = so.least_squares(lambda p: np.asarray(_decay(jnp.asarray(p), t)), [1.0, 1.0, 0.0],
+                           bounds=(lower, upper), method="trf", xtol=1e-15, ftol=1e-15,
+                           gtol=1e-15)
+    assert fit.value[1] == 2.5 and ref.x[1] == pytest.approx(2.5, abs=1e-9)  # on the bound
+    np.testing.assert_allclose(fit.value, ref.x, rtol=0, atol=1e-7)
+    assert fit.cost <= 2 * ref.cost * (1 + 1e-9)
 
 
 # ------------------------------------------------------------------------------ bad input

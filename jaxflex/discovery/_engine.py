@@ -28,7 +28,7 @@ from jaxflex.discovery.scores import ScoreResult, score_statistic
 from jaxflex.model import Model
 from jaxflex.objective import build_objective
 from jaxflex.parameters import ParameterSpace
-from jaxflex.refine import bounded_levenberg_marquardt
+from jaxflex.refine import bounded_least_squares_of
 from jaxflex.sensors import calibrated
 from jaxflex.simulation import Outputs, simulate
 
@@ -64,7 +64,8 @@ LM_STEPS = 30
 
 LM_RTOL = 1e-8
 
-"""A refit stops when an accepted step lowers the cost by less than this fraction."""
+"""A refit stops when an accepted step lowers the cost by less than this fraction (or on
+optimistix's test with this ``rtol`` and ``atol``)."""
 
 
 @dataclass
@@ -72,8 +73,9 @@ class Engine:
     """The universe over the records with the noise model; evaluates costs, Jacobians, fits.
 
     Every Jacobian of a run (score tests, each Levenberg–Marquardt step of each refit) comes
-    from the one compiled forward-mode block (``jacobian_block``); fits run their (tiny) normal
-    equations in NumPy. Coordinates: ``φ = log x`` for active log-scale parameters, else ``x``.
+    from the one compiled forward-mode block (``jacobian_block``); the refits' bounded
+    Levenberg–Marquardt (:func:`jaxflex.refine.bounded_least_squares_of`) calls it back.
+    Coordinates: ``φ = log x`` for active log-scale parameters, else ``x``.
     """
 
     universe: Universe
@@ -266,34 +268,40 @@ class Engine:
 
     def _lm(self, x0: np.ndarray, active: Sequence[int]) -> np.ndarray:
         """Levenberg–Marquardt of the base and ``active`` parameters on the bounds
-        (:func:`jaxflex.refine.bounded_levenberg_marquardt`, whose docstring says why discovery
-        does not use the optimistix refinement).
+        (:func:`jaxflex.refine.bounded_least_squares_of`, on :meth:`_system`).
 
         The coordinates are the physical values over their starting magnitudes: in log
         coordinates a parameter pushed against a lower bound near zero (a friction term that
-        compensated a missing effect) has a vanishing gradient and cannot come back.
+        compensated a missing effect) has a vanishing gradient and cannot come back. The
+        fitted columns are padded with held ones to a multiple of ``BLOCK``, so that one
+        compiled solve serves every fitted set of that size.
         """
         u = self.universe
         mask = u.active_mask(active)
         cols = np.flatnonzero(mask)
-        linear = np.zeros_like(mask)
         x = np.where(mask, x0, u.null)
         x[cols] = np.clip(x[cols], u.space.lower[cols], u.space.upper[cols])
         scale = np.maximum(np.abs(x[cols]), u.space.lower[cols])  # coordinates of order one
+        held = np.flatnonzero(~mask)[: min(-(-len(cols) // BLOCK) * BLOCK, len(x)) - len(cols)]
+        index = np.concatenate([cols, held])
+        scales = np.concatenate([scale, np.ones(len(held))])
+        p0 = x[index] / scales
 
         def system(p: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
             xt = x.copy()
-            xt[cols] = p * scale
-            pred, jac = self.evaluate(xt, linear, cols)
-            return self._system(pred, jac * scale)
+            xt[index] = p * scales
+            pred, jac = self.evaluate(xt, np.zeros_like(mask), index)
+            return self._system(pred, jac * scales)
 
-        phi0 = x[cols] / scale
-        phi = bounded_levenberg_marquardt(
-            system, phi0, u.space.lower[cols] / scale, u.space.upper[cols] / scale,
-            max_steps=self.max_iterations, rtol=LM_RTOL,
+        fit = bounded_least_squares_of(
+            system, 2 * self.n_samples, p0,
+            np.concatenate([u.space.lower[cols] / scale, p0[len(cols):]]),
+            np.concatenate([u.space.upper[cols] / scale, p0[len(cols):]]),
+            free=np.arange(len(index)) < len(cols), rtol=LM_RTOL, atol=LM_RTOL, ftol=LM_RTOL,
+            max_steps=self.max_iterations, marquardt=True,
         )
-        if phi is not phi0:  # a step was accepted (else x keeps its exact start values)
-            x[cols] = phi * scale
+        if fit.cost < fit.cost_start:  # else x keeps its exact start values
+            x[cols] = fit.value[: len(cols)] * scale
         return x
 
     def profile_start(self, x: np.ndarray, active: Sequence[int], slot: int,
