@@ -13,9 +13,9 @@ signal-to-noise power: on one record ``e`` is then ``(ŷ − y)/σ_c`` up to one
 The residual vector (for least squares) and the scalar cost (for the evolutionary search)
 share :meth:`Objective.residuals`.
 
-Parameters can be evaluated from three coordinates (:mod:`jaxflex.parameters`): physical values,
-the unit box ``u`` (evolutionary search) and unconstrained reals ``z`` (refinement). Only the
-free parameters are searched; ``fixed`` ones keep their given values.
+Parameters can be evaluated from physical values or from the unit box ``u`` that the search and
+the refinement work in (:mod:`jaxflex.parameters`). Only the free parameters are searched;
+``fixed`` ones keep their given values.
 
 Records of equal length are stacked and simulated by one ``vmap``; groups of different length
 are simulated one after another inside the same traced function.
@@ -110,9 +110,6 @@ class Objective(eqx.Module):
     def from_unit(self, u: Float[ArrayLike, " d"]) -> Params:
         return self.space.from_unit(u)
 
-    def from_unconstrained(self, z: Float[ArrayLike, " d"]) -> Params:
-        return self.space.from_unconstrained(z)
-
     # --- residuals and cost ----------------------------------------------------------------
     def simulate(self, params: Mapping[str, ArrayLike]) -> tuple[Float[Array, "R C n"], ...]:
         """Simulated output channels per group of equally long records (free params only)."""
@@ -144,11 +141,6 @@ class Objective(eqx.Module):
 
     def unit_cost(self, u: Float[Array, " d"]) -> Scalar:
         return self.cost(self.from_unit(u))
-
-    def unconstrained_residuals(self, z: Float[Array, " d"], args: object = None) -> Array:
-        """Residuals at ``z = logit(u)`` (``args`` is ignored: optimistix's signature)."""
-        del args
-        return self.residuals(self.from_unconstrained(z))
 
     def fitness(self, population: Float[Array, "P d"]) -> Float[Array, " P"]:
         """Cost of every unit-box candidate, one vmapped call split across the host's cores

@@ -1,13 +1,9 @@
 """Named physical parameters, their bounds, and the coordinates optimisers search in.
 
 A parameter set is a plain ``dict[str, Array]`` (a pytree), so it can be vmapped, differentiated
-and printed. A :class:`ParameterSpace` fixes an order and maps between three coordinates:
-
-* physical values (in the units of the spec),
-* the unit box ``u ∈ [0, 1]^d`` that the evolutionary algorithms search (log scale for
-  parameters spanning decades), and
-* unconstrained reals ``z = logit(u)`` for gradient refinement, so that any ``z`` respects
-  the bounds.
+and printed. A :class:`ParameterSpace` fixes an order and maps between physical values (in the
+units of the spec) and the unit box ``u ∈ [0, 1]^d`` that the evolutionary algorithms search and
+the bounded refinement works in (log scale for parameters spanning decades).
 
 A coordinate round trip can land one ulp past a bound (``lo·exp(log(hi/lo))`` is not ``hi``).
 Every seed and warm start enters the box through one place, :func:`into_unit_box` (via
@@ -21,7 +17,6 @@ import math
 from collections.abc import Iterable, Mapping
 from dataclasses import dataclass
 
-import jax
 import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, ArrayLike, Float
@@ -225,16 +220,6 @@ class ParameterSpace:
                     f"[{spec.lower!r}, {spec.upper!r}] {spec.unit}"
                 )
         return into_unit_box(u, what)
-
-    # --- unit box <-> unconstrained ----------------------------------------------------------
-    def to_unconstrained(self, params: Mapping[str, ArrayLike], margin: float = 1e-9) -> Array:
-        """Physical values → reals ``z = logit(u)``; values on a bound are nudged inside."""
-        u = jnp.clip(self.to_unit(params), margin, 1.0 - margin)
-        return jnp.log(u) - jnp.log1p(-u)
-
-    def from_unconstrained(self, z: Float[ArrayLike, "... d"]) -> Params:
-        """Reals → physical values strictly inside the bounds."""
-        return self.from_unit(jax.nn.sigmoid(jnp.asarray(z, dtype=jnp.float64)))
 
     # --- checks -----------------------------------------------------------------------------
     def validate(self, params: Mapping[str, ArrayLike], *, within_bounds: bool = False) -> None:
