@@ -141,11 +141,13 @@ def test_two_sided_score_for_an_interior_null():
 
 def test_candidates_by_name_profile_stribeck_and_validate():
     cands = candidate_set()
-    assert {c.name for c in cands} == {"payload", "delay", "motor_lag", "gravity",
-                                       "root_compliance", "stribeck", "torque_offset",
-                                       *(f"sensor_{k}:{c}" for k in ("gain", "offset")
-                                         for c in ("joint_angle", "tip_acceleration",
-                                                   "root_strain"))}
+    physical = {"payload", "delay", "motor_lag", "gravity", "root_compliance", "stribeck",
+                "torque_offset"}
+    assert {c.name for c in cands} == physical | {
+        f"sensor_gain:{c}" for c in ("joint_angle", "tip_acceleration", "root_strain")
+    }  # no sensor offset unless named: records are re-zeroed at rest
+    fitted = {c.name for c in candidate_set(None, ["joint_angle", "root_strain"])}
+    assert fitted == physical | {"sensor_gain:joint_angle", "sensor_gain:root_strain"}
     stribeck = next(c for c in cands if c.name == "stribeck")
     assert len(stribeck.effects) == len(Stribeck.grid()) and stribeck.label(0).startswith("v_s=")
     assert len(candidate_set([Stribeck(v_s=0.2)])[0].effects) == 1
@@ -233,7 +235,9 @@ def test_clean_records_have_no_significant_candidate():
     records, _, _ = hidden({}, seed=4)
     ranking = score_tests(Model(), TRUTH, records, noise=NOISE)
     assert not any(r.significant for r in ranking), [(r.effect, r.p_value) for r in ranking]
-    assert {r.effect for r in ranking} == {c.name for c in candidate_set()}
+    assert {r.effect for r in ranking} == {
+        c.name for c in candidate_set(None, ["joint_angle", "tip_acceleration"])
+    }
 
 
 def test_given_noise_levels_are_used_and_the_rest_estimated(payload_case):

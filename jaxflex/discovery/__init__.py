@@ -63,7 +63,7 @@ Channels
     channel; what the records do not measure is not fitted.
 """
 
-from jaxflex.discovery.candidates import Candidate, candidate_set
+from jaxflex.discovery.candidates import Candidate, candidate_set, default_candidates
 from jaxflex.discovery.example import load_example
 from jaxflex.discovery.explain import explain
 from jaxflex.discovery.loop import discover
@@ -81,6 +81,7 @@ __all__ = [
     "Step",
     "add_effect",
     "candidate_set",
+    "default_candidates",
     "refit",
     "discover",
     "explain",

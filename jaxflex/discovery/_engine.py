@@ -109,7 +109,7 @@ class Engine:
         an added effect, a discovery run — reuses one compiled Jacobian.
         """
         names = [c.name for c in candidates]
-        universe = cls.make_universe(model, candidates, bounds, fixed)
+        universe = cls.make_universe(model, candidates, bounds, fixed, channels)
         pool = universe.candidates
         channels = tuple(channels)
         levels = noise_levels(noise, channels)
@@ -142,11 +142,13 @@ class Engine:
     @staticmethod
     def make_universe(model: Model, candidates: Sequence[Candidate],
                  bounds: Mapping[str, tuple[float, float]] | None = None,
-                 fixed: Mapping[str, float] | None = None) -> Universe:
-        """The universe of ``model``, every library effect and ``candidates`` (bounds and fixed
-        values validated and applied)."""
+                 fixed: Mapping[str, float] | None = None,
+                 channels: Sequence[str] | None = None) -> Universe:
+        """The universe of ``model``, the default candidates for ``channels`` and
+        ``candidates`` (bounds and fixed values validated and applied)."""
         names = [c.name for c in candidates]
-        pool = [c for c in candidate_set() if c.name not in names] + list(candidates)
+        pool = [c for c in candidate_set(None, channels) if c.name not in names]
+        pool += list(candidates)
         pool = sorted((c for c in pool if c.name not in model.effect_names),
                       key=lambda c: c.name)
         return Universe.build(model, pool, bounds, fixed)

@@ -10,7 +10,7 @@ from dataclasses import dataclass
 import equinox as eqx
 from jaxtyping import Array, Float
 
-from jaxflex.effects import Effect, get_effect, library
+from jaxflex.effects import Effect, SensorOffset, get_effect, library
 from jaxflex.effects._base import Structure
 from jaxflex.parameters import ParameterSpec, Params
 
@@ -110,12 +110,32 @@ def as_candidate(item: str | Effect | Candidate) -> Candidate:
     return cand
 
 
+def default_candidates(channels: Iterable[str] | None = None) -> list[str]:
+    """The effects discovery tests unless told otherwise: every library effect, with a sensor's
+    gain only on the fitted ``channels`` (all when ``None``) and no sensor offset.
+
+    A sensor offset is left out because records start at rest and are read re-zeroed there
+    (:mod:`jaxflex.measured`): a constant then only soaks up the mean of whatever the model
+    misses (on a hidden payload it scored above the payload). Name ``sensor_offset:CHANNEL``
+    to test it on a record whose reading at rest is not zero.
+    """
+    wanted = None if channels is None else set(channels)
+    return [
+        e.name
+        for e in library()
+        if not isinstance(e, SensorOffset)
+        and (wanted is None or getattr(e, "channel", None) in wanted | {None})
+    ]
+
+
 def candidate_set(
     candidates: Iterable[str | Effect | Candidate] | None = None,
+    channels: Iterable[str] | None = None,
 ) -> tuple[Candidate, ...]:
-    """Candidates by name or instance; ``None``: every library effect (Stribeck profiled)."""
+    """Candidates by name or instance; ``None``: :func:`default_candidates` for ``channels``
+    (Stribeck profiled)."""
     if candidates is None:
-        candidates = [e.name for e in library()]
+        candidates = default_candidates(channels)
     elif isinstance(candidates, (str, Effect)):
         candidates = [candidates]
     result = tuple(as_candidate(c) for c in candidates)
@@ -130,4 +150,5 @@ def candidate_set(
 __all__ = [
     "Candidate",
     "candidate_set",
+    "default_candidates",
 ]

@@ -243,13 +243,16 @@ def discover(
     if len(budget) != 2 or min(budget) < 1:
         raise ValueError(f"budget={budget!r} must be generations or (generations, population)")
     budget = (int(budget[0]), int(budget[1]))
-    cands = tuple(c for c in candidate_set(candidates) if c.name not in model.effect_names)
     channels = _channels(records, channels)
+    cands = tuple(
+        c for c in candidate_set(candidates, channels) if c.name not in model.effect_names
+    )
     if holdout is not None:
         _channels(holdout, channels)
     fit_options = {"bounds": bounds, "fixed": fixed, "weights": weights, "noise": noise,
                    "channels": channels}
-    Engine.make_universe(model, cands, bounds, fixed)  # bad names or values: fail before any fit
+    # bad names or values: fail before any fit
+    Engine.make_universe(model, cands, bounds, fixed, channels)
     check_weights(weights, channels)
     rigid = _rigid(records, model, channels)
     start = _initial_params(records, model, initial, budget, seed, progress, rigid, fit_options)
