@@ -40,7 +40,7 @@ lint: $(VENV)/.stamp-dev
 # cache (measured: the suite from a fresh clone 474 s without it, 413 s with it). The strict
 # documentation build runs first: a broken reference fails the tests.
 test: $(VENV)/.stamp-dev lint docs
-	$(TEST_ENV) $(PY) -m pytest -n $(PYTEST_WORKERS) -m "not slow" tests
+	$(TEST_ENV) $(PY) -m pytest -n $(PYTEST_WORKERS) --dist worksteal -m "not slow" tests
 
 # Strict: any warning (an unresolved reference, a docstring mkdocstrings cannot read, a page
 # missing from the navigation, a public name missing from the API reference) fails the build.

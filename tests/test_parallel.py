@@ -48,6 +48,7 @@ SPLIT_CHECKS = textwrap.dedent(
 )
 
 
+@pytest.mark.slow  # about 40 s; the fast suite runs three devices in the device-count hash test
 def test_split_over_three_devices_in_a_fresh_process():
     """Device count from JAXFLEX_HOST_DEVICES; simulation, jit, DE and PSO runs all split."""
     env = {**os.environ, "JAXFLEX_HOST_DEVICES": "3", "JAX_PLATFORMS": "cpu"}
@@ -103,7 +104,7 @@ def test_a_candidates_reductions_do_not_depend_on_how_many_share_its_device():
 DEVICE_COUNT_CHECKS = textwrap.dedent(
     """
     import hashlib
-    import equinox as eqx, numpy as np
+    import equinox as eqx, jax, numpy as np
     from jaxflex import make_records
     from jaxflex.evolve import DE, run
     from jaxflex.objective import build_objective
@@ -118,7 +119,7 @@ DEVICE_COUNT_CHECKS = textwrap.dedent(
                  generations=4)
     digest.update(np.asarray(result.best_x).tobytes())
     digest.update(np.asarray(result.history_best).tobytes())
-    print(digest.hexdigest())
+    print(len(jax.devices()), digest.hexdigest())
     """
 )
 
@@ -134,5 +135,7 @@ def test_fitness_and_de_are_bit_identical_on_one_two_and_three_devices():
             env=env, capture_output=True, text=True, timeout=300,
         )
         assert result.returncode == 0, result.stderr[-3000:]
-        digests.append(result.stdout.split()[-1])
+        count, digest = result.stdout.split()[-2:]
+        assert count == devices  # the process really has that many devices to split over
+        digests.append(digest)
     assert digests[0] == digests[1] == digests[2], digests
