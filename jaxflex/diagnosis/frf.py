@@ -15,7 +15,6 @@ from scipy.signal import find_peaks
 from jaxflex.data import Record
 
 LINK_OUTPUTS: tuple[str, ...] = ("tip_acceleration", "root_strain", "tip_deflection")
-
 """Outputs that see the link's vibration, in the order the FRF comparison prefers them."""
 
 
