@@ -346,6 +346,7 @@ HELD = {"beta": 9e-5}  # the truth, not START's value: a held parameter keeps th
 BOX = (0.004, 0.006)  # J_h: the truth and the start lie above, so the fit ends on the box
 
 
+@pytest.mark.slow  # 20-45 s; the CLI test of the fitting options runs in the fast suite
 def test_discover_holds_fixed_parameters_and_respects_bounds(payload_case):
     records, _, _ = payload_case
     report = discover(records, initial=START, fixed=HELD, bounds={"J_h": BOX}, max_steps=0)
