@@ -160,7 +160,6 @@ def test_interval_coverage_over_ten_noise_seeds():
     assert 0.3 < np.mean(z**2) < 2.0
 
 
-@pytest.mark.slow  # about 30 s; test_measured checks the flags on a ROTFLEX-like rig
 def test_encoder_only_data_cannot_pin_the_stiffness_damping():
     """Without the accelerometer, beta is reported as poorly identifiable — and it is."""
     records = make_records(noise=True, seed=3, duration=1.0)

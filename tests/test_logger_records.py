@@ -151,6 +151,7 @@ def run_payload(tmp_path, logger, outputs=jaxflex_outputs):
     check_payload(discover(records, initial=START), floor)
 
 
+@pytest.mark.slow  # about 13 s; the clean Radau-integrated records below check the same
 def test_clean_logger_records_add_nothing(tmp_path):
     run_clean(tmp_path, DEFAULT_CLEAN)
 
