@@ -11,6 +11,7 @@ from __future__ import annotations
 import dataclasses
 import json
 import math
+from pathlib import Path
 from typing import ClassVar
 
 import jax.numpy as jnp
@@ -308,14 +309,20 @@ def test_discover_validates_its_arguments(payload_case):
         discover(records, initial=START, channels=("deflection_angle",))
 
 
-def test_cli_discover_writes_the_json_contract(payload_case, tmp_path, capsys):
-    records, _, _ = payload_case
+def saved_case(records, tmp_path) -> tuple[list[str], Path]:
+    """The records written as CSV files and the start parameters as a JSON file, for the CLI."""
     files = []
     for r in records:
         files.append(str(tmp_path / f"{r.name}.csv"))
         save_record(r, files[-1])
     initial = tmp_path / "start.json"
     initial.write_text(json.dumps(START))
+    return files, initial
+
+
+def test_cli_discover_writes_the_json_contract(payload_case, tmp_path, capsys):
+    records, _, _ = payload_case
+    files, initial = saved_case(records, tmp_path)
     out = tmp_path / "out.json"
     code = main(["discover", *files, "--initial", str(initial), "--effects",
                  "payload,delay,gravity", "--max-steps", "0", "--json", str(out),
@@ -416,12 +423,7 @@ def test_the_base_search_uses_the_given_noise_levels(payload_case, monkeypatch, 
 
 def test_cli_discover_takes_identify_fitting_options_and_reproduces(payload_case, tmp_path):
     records, _, _ = payload_case
-    files = []
-    for r in records:
-        files.append(str(tmp_path / f"{r.name}.csv"))
-        save_record(r, files[-1])
-    initial = tmp_path / "start.json"
-    initial.write_text(json.dumps(START))
+    files, initial = saved_case(records, tmp_path)
     runs = []
     for name in ("a.json", "b.json"):
         assert main(["discover", *files, "--initial", str(initial), "--max-steps", "0",
