@@ -49,6 +49,7 @@ KNOWN_UNITS: dict[str, str] = {
     "tip_deflection": "m",
     "root_strain": "1",
     "deflection_angle": "rad",
+    "joint_torque": "N m",
 }
 """Unit of every column jaxflex knows (SI; ``1`` for strain), as a record reports them."""
 MIN_FILE_SAMPLES = 16

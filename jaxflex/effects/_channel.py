@@ -14,16 +14,16 @@ from typing import ClassVar
 
 import equinox as eqx
 
+from jaxflex.data import KNOWN_UNITS
 from jaxflex.effects._base import Effect
 from jaxflex.parameters import ParameterSpec
 
 CHANNEL_UNITS: dict[str, str] = {
-    "joint_angle": "rad",
-    "tip_acceleration": "m/s^2",
-    "joint_velocity": "rad/s",
-    "tip_deflection": "m",
-    "root_strain": "1",
-    "joint_torque": "N m",
+    name: KNOWN_UNITS[name]
+    for name in (
+        "joint_angle", "tip_acceleration", "joint_velocity", "tip_deflection", "root_strain",
+        "joint_torque",
+    )
 }
 """Unit of each simulator output channel (:data:`jaxflex.simulation.OUTPUT_NAMES`)."""
 
