@@ -77,9 +77,9 @@ def friction_iterations(model: Model, torque, population: int = 10) -> dict[str,
     solve = simulator._bracketed_newton
 
     def counted(residual, lo, hi, guess):
-        root, count = solve(residual, lo, hi, guess)
+        root, count, extra = solve(residual, lo, hi, guess)
         jax.debug.callback(lambda c: counts.append(int(c)), count)
-        return root, count
+        return root, count, extra
 
     simulator._bracketed_newton = counted
     try:

@@ -145,23 +145,24 @@ def oscillator_step(omega: Array, damping: Array, h: float) -> _StepMaps:
     )
 
 
-def _bracketed_newton(residual, lo: Array, hi: Array, guess: Array) -> tuple[Array, Array]:
+def _bracketed_newton(residual, lo: Array, hi: Array, guess: Array):
     """Root of the increasing scalar ``residual`` in ``[lo, hi]``, converged to round-off.
 
-    ``residual(v)`` returns ``(r, slope, scale)``, ``scale`` being the size of the terms that
-    make up ``r`` (its round-off is a few ulps of it). Newton steps that leave the bracket fall
-    back to bisection, so every iteration shrinks it; the loop stops when the residual is at
-    round-off, the Newton step is below an ulp of ``v``, the bracket has collapsed or an
-    iteration left ``v`` unchanged, and after
-    :data:`MAX_FRICTION_ITERATIONS` at the latest. Returns the root and the iterations taken.
+    ``residual(v)`` returns ``(r, slope, scale, extra)``, ``scale`` being the size of the terms
+    that make up ``r`` (its round-off is a few ulps of it) and ``extra`` any values worth keeping
+    from the evaluation (the friction there). Newton steps that leave the bracket fall back to
+    bisection, so every iteration shrinks it; the loop stops when the residual is at round-off,
+    the Newton step is below an ulp of ``v``, the bracket has collapsed or an iteration left
+    ``v`` unchanged, and after :data:`MAX_FRICTION_ITERATIONS` at the latest. Every lane ends
+    on a point it evaluated. Returns the root, the iterations taken and ``extra`` at the root.
     """
     eps = jnp.finfo(jnp.result_type(guess)).eps
 
     def step(carry):
-        v, _, lo, hi, converged, count = carry
+        v, _, lo, hi, converged, count, _ = carry
         # one value of each quantity for every use below (XLA could otherwise recompute the
         # residual in several fused kernels that round differently and never agree)
-        r, slope, scale = jax.lax.optimization_barrier(residual(v))
+        r, slope, scale, extra = jax.lax.optimization_barrier(residual(v))
         lo = jnp.where(r < 0.0, v, lo)
         hi = jnp.where(r > 0.0, v, hi)
         newton = v - r / jnp.where(slope > 0.0, slope, 1.0)
@@ -172,28 +173,32 @@ def _bracketed_newton(residual, lo: Array, hi: Array, guess: Array) -> tuple[Arr
             | (jnp.abs(r) <= RESIDUAL_ULPS * eps * scale)
             | (jnp.abs(new - v) <= eps * jnp.abs(v))
             | (hi - lo <= eps * jnp.maximum(jnp.abs(lo), jnp.abs(hi)))
+            | (count + 1 >= MAX_FRICTION_ITERATIONS)  # the last one keeps the point it evaluated
         )
-        return jnp.where(done, v, new), v, lo, hi, done, count + 1
+        return jnp.where(done, v, new), v, lo, hi, done, count + 1, extra
 
     def running(carry):
-        v, previous, _, _, done, count = carry
+        v, previous, _, _, done, count, _ = carry
         # an iteration that leaves v unchanged has nothing left to do, whatever the test said
         return ~done & (v != previous) & (count < MAX_FRICTION_ITERATIONS)
 
     v0 = jnp.clip(guess, lo, hi)
     unset = jnp.full_like(v0, jnp.nan)
-    start = (v0, unset, lo, hi, jnp.zeros_like(v0, dtype=bool), jnp.zeros((), int))
-    v, _, _, _, _, count = jax.lax.while_loop(running, step, start)
-    return v, count
+    extra = jax.tree.map(jnp.zeros_like, jax.eval_shape(residual, v0)[3])
+    start = (v0, unset, lo, hi, jnp.zeros_like(v0, dtype=bool), jnp.zeros((), int), extra)
+    v, _, _, _, _, count, extra = jax.lax.while_loop(running, step, start)
+    return v, count, extra
 
 
-def _joint_velocity_solve(friction, target: Array, gain: Array, guess: Array) -> Array:
+def _joint_velocity_solve(friction, target: Array, gain: Array, guess: Array):
     """Solve ``v + gain·f(v) = target`` for the end-of-step joint velocity ``v``.
 
     ``f`` is any friction law with ``f(0) = 0`` and ``sign f(v) = sign v``, so the root lies
     between 0 and ``target``; a safeguarded Newton iteration converges it to round-off
     (:func:`_bracketed_newton`), stick phases included. Gradients follow from the implicit-function
-    theorem (:func:`jax.lax.custom_root`), so reverse mode stores no iterations.
+    theorem (:func:`jax.lax.custom_root`), so reverse mode stores no iterations. Returns the root
+    and, from the solve's last evaluation, ``(f, f')`` there (without derivatives: see
+    :func:`_friction_at_root`).
     """
 
     def residual(v):
@@ -203,12 +208,32 @@ def _joint_velocity_solve(friction, target: Array, gain: Array, guess: Array) ->
         def with_slope(v):
             f, df = jax.jvp(friction, (v,), (jnp.ones_like(v),))
             scale = jnp.abs(v) + jnp.abs(gain * f) + jnp.abs(target)
-            return v + gain * f - target, 1.0 + gain * df, scale
+            return v + gain * f - target, 1.0 + gain * df, scale, (f, df)
 
         lo, hi = jnp.minimum(0.0, target), jnp.maximum(0.0, target)
-        return _bracketed_newton(with_slope, lo, hi, guess)[0]
+        root, _, friction_there = _bracketed_newton(with_slope, lo, hi, guess)
+        return root, friction_there
 
-    return jax.lax.custom_root(residual, guess, solve, lambda g, y: y / g(1.0))
+    return jax.lax.custom_root(residual, guess, solve, lambda g, y: y / g(1.0), has_aux=True)
+
+
+def _friction_at_root(friction_and_slope, params: Params, v: Array, evaluated):
+    """``friction_and_slope(params, v)`` whose value is ``evaluated``, the solve's own evaluation
+    at ``v``: the step reuses it instead of evaluating the law once more, and derivatives (with
+    respect to the parameters and ``v``) come from the law itself, only when asked for."""
+
+    @jax.custom_jvp
+    def at_root(params, v, evaluated):
+        return evaluated
+
+    @at_root.defjvp
+    def at_root_jvp(primals, tangents):
+        params, v, evaluated = primals
+        d_params, d_v, _ = tangents
+        _, tangent = jax.jvp(friction_and_slope, (params, v), (d_params, d_v))
+        return evaluated, tangent
+
+    return at_root(params, v, evaluated)
 
 
 def _warm_start(v: Array, f: Array, slope: Array, target: Array, gain: Array) -> Array:
@@ -355,8 +380,8 @@ def simulate_core(
     def friction(v):
         return model.friction(params, v)
 
-    def friction_and_slope(v):
-        return jax.jvp(friction, (v,), (jnp.ones_like(v),))
+    def law_and_slope(params, v):
+        return jax.jvp(lambda v: model.friction(params, v), (v,), (jnp.ones_like(v),))
 
     def explicit_forces(theta, vel, vel_r, deta):
         """Rigid acceleration, modal force (loads and the off-diagonal mass damping) and the
@@ -375,10 +400,10 @@ def simulate_core(
         vel_r_free = vel_r + h * rigid
         theta_r_free = theta_r + h * vel_r + 0.5 * h**2 * rigid
         target = vel_r_free + p @ deta_free + gain * (tau - (1.0 - w) * f_vel)
-        v_end = _joint_velocity_solve(
+        v_end, evaluated = _joint_velocity_solve(
             friction, target, w * gain, _warm_start(vel, f_vel, df_vel, target, w * gain)
         )
-        f_end, df_end = friction_and_slope(v_end)
+        f_end, df_end = _friction_at_root(law_and_slope, params, v_end, evaluated)
         u = tau - w * f_end - (1.0 - w) * f_vel
         return (
             theta_r_free + half_h2_inv_j * u,
@@ -465,7 +490,7 @@ def simulate_core(
 
     theta_r0, eta0 = system.initial
     vel0 = jnp.zeros_like(theta_r0)
-    state0 = (theta_r0, vel0, eta0, jnp.zeros_like(eta0), vel0, *friction_and_slope(vel0))
+    state0 = (theta_r0, vel0, eta0, jnp.zeros_like(eta0), vel0, *law_and_slope(params, vel0))
     _, out = jax.lax.scan(sample, state0, fine, unroll=SCAN_UNROLL)
     if return_states:
         out, states = out

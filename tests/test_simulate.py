@@ -247,7 +247,7 @@ def test_friction_solve_converges_to_round_off(target, guess_share):
     simulator = sys.modules["jaxflex.simulation"]
 
     def solve(target, guess):
-        return simulator._joint_velocity_solve(_base_friction, target, gain, guess)
+        return simulator._joint_velocity_solve(_base_friction, target, gain, guess)[0]
 
     root = float(solve(jnp.float64(target), jnp.float64(guess_share * target)))
     expected = brentq(
@@ -271,15 +271,18 @@ def test_friction_solve_stops_well_before_its_limit():
     def with_slope(target):
         def residual(v):
             f, df = jax.jvp(_base_friction, (v,), (1.0,))
-            return v + gain * f - target, 1.0 + gain * df, abs(v) + abs(gain * f) + abs(target)
+            scale = abs(v) + abs(gain * f) + abs(target)
+            return v + gain * f - target, 1.0 + gain * df, scale, ()
 
         return residual
 
     for target in (1e-9, 3e-4, 0.02, 0.5, 5.0):
         for guess in (0.0, target):
-            _, count = simulator._bracketed_newton(with_slope(target), 0.0, target, guess)
+            _, count, _ = simulator._bracketed_newton(with_slope(target), 0.0, target, guess)
             assert int(count) < simulator.MAX_FRICTION_ITERATIONS // 2, (target, guess, count)
-        _, count = simulator._bracketed_newton(with_slope(target), 0.0, target, 0.999 * target)
+        _, count, _ = simulator._bracketed_newton(
+            with_slope(target), 0.0, target, 0.999 * target
+        )
         assert int(count) <= 12, (target, count)
 
 
@@ -329,14 +332,19 @@ def test_warm_start_lands_on_the_root_while_sliding():
 
         def residual(v, target=target):
             f, df = jax.jvp(_base_friction, (v,), (1.0,))
-            return v + gain * f - target, 1.0 + gain * df, abs(v) + abs(gain * f) + abs(target)
+            scale = abs(v) + abs(gain * f) + abs(target)
+            return v + gain * f - target, 1.0 + gain * df, scale, (f, df)
 
         lo, hi = min(0.0, target), max(0.0, target)
-        root, count = simulator._bracketed_newton(residual, lo, hi, guess)
+        root, count, (f_root, slope_root) = simulator._bracketed_newton(residual, lo, hi, guess)
         expected = brentq(
             lambda v, target=target: v + gain * float(_base_friction(v)) - target,
             lo, hi, xtol=1e-300, rtol=4 * np.finfo(float).eps,
         )
         assert float(root) == pytest.approx(expected, rel=1e-14, abs=0)
+        # the friction and slope the solve hands on are the law's at the root it returns
+        f_law, slope_law = jax.jvp(_base_friction, (root,), (1.0,))
+        assert float(f_root) == pytest.approx(float(f_law), rel=1e-14, abs=0)
+        assert float(slope_root) == pytest.approx(float(slope_law), rel=1e-14, abs=0)
         if abs(previous) >= 30 * 0.01:  # far from the smooth-Coulomb knee (ω_s = 0.01)
             assert int(count) == 1, (previous, change, count)
