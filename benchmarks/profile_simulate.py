@@ -51,23 +51,36 @@ def best_time(model: Model, population: int, torque, repeats: int = 5) -> float:
     return min(times)
 
 
-def kernels_per_sample(model: Model, torque) -> dict[str, int]:
-    """Operations in the body of the compiled time loop (one sample = n_substeps steps)."""
+def _computation(text: str, name: str) -> str:
+    body = text[text.index(f"%{name} ") :]
+    return body[: body.index("\n}")]
+
+
+def _operations(computation: str) -> dict[str, int]:
+    ops = re.findall(r"= \S+ ([a-z\-]+)\(", computation)
+    counts = {op: ops.count(op) for op in sorted(set(ops))}
+    for bookkeeping in ("get-tuple-element", "parameter", "tuple", "constant"):
+        counts.pop(bookkeeping, None)
+    return counts
+
+
+def kernels_per_sample(model: Model, torque) -> tuple[dict[str, int], dict[str, int]]:
+    """Operations in the body of the compiled time loop (one sample = n_substeps steps), and in
+    one iteration of the friction solve's loop nested in it (its body and its condition)."""
     run, params = compiled_batch(model, 100, torque)
     text = run.lower(params).compile().as_text()
     loop = next(
         line for line in text.splitlines()
         if " while(" in line and f'"known_trip_count":{{"n":"{torque.shape[0]}"}}' in line
     )
-    body_name = re.search(r"body=%?([\w.\-]+)", loop).group(1)
-    body = text[text.index(f"%{body_name} ") :]
-    body = body[: body.index("\n}")]
-    ops = re.findall(r"= \S+ ([a-z\-]+)\(", body)
-    counts = {op: ops.count(op) for op in sorted(set(ops))}
-    counts.pop("get-tuple-element", None)
-    counts.pop("parameter", None)
-    counts.pop("tuple", None)
-    return counts
+    body = _computation(text, re.search(r"body=%?([\w.\-]+)", loop).group(1))
+    nested = next(line for line in body.splitlines() if " while(" in line)
+    iteration = {}
+    for part in ("body", "condition"):
+        name = re.search(part + r"=%?([\w.\-]+)", nested).group(1)
+        for op, n in _operations(_computation(text, name)).items():
+            iteration[op] = iteration.get(op, 0) + n
+    return _operations(body), iteration
 
 
 def friction_iterations(model: Model, torque, population: int = 10) -> dict[str, float]:
@@ -105,25 +118,14 @@ def main() -> None:
     samples = torque.shape[0]
     model = Model()
 
-    kernels = kernels_per_sample(model, torque)
-    launched = sum(n for op, n in kernels.items() if op in ("fusion", "copy", "custom-call"))
-    print(f"kernels per sample ({model.n_substeps} sub-steps): {launched}  {kernels}")
-
-    populations = [1, 10, 25, 50, 100]
-    per_population = [best_time(model, p, torque) for p in populations]
-    slope, intercept = np.polyfit(populations, per_population, 1)
-    for p, t in zip(populations, per_population, strict=True):
-        print(f"population {p:4d}: {t * 1e3:7.1f} ms ({p / t:6.0f} sims/s)")
+    kernels, per_iteration = kernels_per_sample(model, torque)
+    launches = ("fusion", "copy", "custom-call")
+    launched = sum(n for op, n in kernels.items() if op in launches)
+    per_friction_iteration = sum(n for op, n in per_iteration.items() if op in launches)
     print(
-        f"fit: {intercept * 1e3:.1f} ms fixed + {slope * 1e3:.3f} ms per candidate; per sample "
-        f"{intercept / samples * 1e6:.2f} us fixed = {intercept / samples / launched * 1e9:.0f} "
-        f"ns per kernel"
+        f"kernels per sample ({model.n_substeps} sub-steps): {launched} {kernels}, plus "
+        f"{per_friction_iteration} per friction iteration {per_iteration}"
     )
-
-    per_mesh = {}
-    for n_el in (2, 5, 10):
-        per_mesh[n_el] = best_time(Model(testbed=Testbed(n_elements=n_el)), 100, torque)
-        print(f"n_el {n_el:2d} ({2 * n_el} modes), population 100: {per_mesh[n_el] * 1e3:.1f} ms")
 
     iterations = friction_iterations(model, torque)
     print(
@@ -132,6 +134,27 @@ def main() -> None:
         f"{iterations['max_per_candidate']}), {iterations['mean_of_population_max']:.2f} per "
         "vmapped loop"
     )
+    total = launched + (
+        model.n_substeps * iterations["mean_of_population_max"] * per_friction_iteration
+    )
+    print(f"kernel launches per sample, friction iterations included: {total:.0f}")
+
+    populations = [1, 10, 25, 50, 100]
+    per_population = [best_time(model, p, torque) for p in populations]
+    slope, intercept = np.polyfit(populations, per_population, 1)
+    for p, t in zip(populations, per_population, strict=True):
+        print(f"population {p:4d}: {t * 1e3:7.1f} ms ({p / t:6.0f} sims/s)")
+    print(
+        f"fit: {intercept * 1e3:.1f} ms fixed + {slope * 1e3:.3f} ms per candidate; per sample "
+        f"{intercept / samples * 1e6:.2f} us fixed = {intercept / samples / total * 1e9:.0f} "
+        f"ns per kernel"
+    )
+
+    per_mesh = {}
+    for n_el in (2, 5, 10):
+        per_mesh[n_el] = best_time(Model(testbed=Testbed(n_elements=n_el)), 100, torque)
+        print(f"n_el {n_el:2d} ({2 * n_el} modes), population 100: {per_mesh[n_el] * 1e3:.1f} ms")
+
 
     per_limit = {}
     default = simulator.MAX_FRICTION_ITERATIONS
@@ -152,7 +175,9 @@ def main() -> None:
                 "device": "one CPU device (JAXFLEX_HOST_DEVICES=1)", "repeats": 5,
             },
             "kernels_per_sample": kernels,
+            "kernels_per_friction_iteration": per_iteration,
             "kernel_launches_per_sample": launched,
+            "kernel_launches_per_sample_with_friction_iterations": total,
             "time_vs_population_s": dict(zip(map(str, populations), per_population, strict=True)),
             "linear_fit": {"fixed_s": intercept, "per_candidate_s": slope},
             "time_vs_elements_at_population_100_s": {str(k): v for k, v in per_mesh.items()},
