@@ -1,5 +1,9 @@
 """`jaxflex simulate`: the record it writes is the simulator's output; bad input is named."""
 
+import os
+import subprocess
+import sys
+
 import numpy as np
 import pytest
 
@@ -50,3 +54,48 @@ def test_bad_input_is_named(tmp_path, capsys, extra, message):
     assert main(["simulate", "--input", "pulse", "--out", str(out), *extra]) == 2
     assert message in capsys.readouterr().err
     assert not out.exists()
+
+
+
+def _without_jax_cache(tmp_path, cache_dir: str | None) -> dict[str, str]:
+    """This process's environment without JAX's cache setting, with a fresh home folder and
+    ``JAXFLEX_CACHE_DIR`` set to ``cache_dir`` (None: unset)."""
+    env = {k: v for k, v in os.environ.items() if k not in NO_CACHE_SETTINGS}
+    env["HOME"] = str(tmp_path / "home")
+    if cache_dir is not None:
+        env["JAXFLEX_CACHE_DIR"] = cache_dir
+    return env
+
+
+NO_CACHE_SETTINGS = ("JAX_COMPILATION_CACHE_DIR", "JAXFLEX_CACHE_DIR", "XDG_CACHE_HOME")
+
+
+def test_the_command_keeps_its_compiled_programs_between_runs(tmp_path):
+    """A run fills the cache folder with the programs it compiled, the next finds them there
+    and writes the same record; an empty JAXFLEX_CACHE_DIR keeps nothing; by default the
+    cache is ~/.cache/jaxflex."""
+    cache = tmp_path / "cache"
+    env = _without_jax_cache(tmp_path, str(cache))
+    for name in ("a.csv", "b.csv"):
+        run = subprocess.run(
+            [sys.executable, "-m", "jaxflex", "simulate", "--input", "pulse", "--duration",
+             "0.3", "--out", str(tmp_path / name)],
+            env=env, capture_output=True, text=True, timeout=300,
+        )
+        assert run.returncode == 0, run.stderr
+        if name == "a.csv":
+            kept = sorted(p.name for p in cache.iterdir())
+            assert kept  # at least the simulator's program (it compiles for over a second)
+    assert sorted(p.name for p in cache.iterdir()) == kept  # found, not compiled again
+    assert (tmp_path / "a.csv").read_bytes() == (tmp_path / "b.csv").read_bytes()
+    probe = (
+        "import jax; from jaxflex.cli import use_persistent_cache; use_persistent_cache(); "
+        "print(jax.config.jax_compilation_cache_dir)"
+    )
+    default = str(tmp_path / "home" / ".cache" / "jaxflex")
+    for setting, expected in (("", "None"), (None, default), ("/elsewhere", "/elsewhere")):
+        run = subprocess.run(
+            [sys.executable, "-c", probe], env=_without_jax_cache(tmp_path, setting),
+            capture_output=True, text=True, timeout=120,
+        )
+        assert run.stdout.strip() == expected, run.stderr

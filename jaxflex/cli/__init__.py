@@ -102,6 +102,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         print("jaxflex: interrupted", file=sys.stderr)
         return EXIT_INTERRUPTED
     args.argv = argv  # what a command that starts copies of itself passes on
+    use_persistent_cache()
     prefix = f"jaxflex {args.command}"
     restore = _on_sigterm(prefix)
     format_warning = warnings.formatwarning
@@ -120,6 +121,26 @@ def main(argv: Sequence[str] | None = None) -> int:
     finally:
         warnings.formatwarning = format_warning
         restore()
+
+
+def use_persistent_cache() -> None:
+    """Keep compiled programs between runs of the command in JAX's on-disk cache, so a second
+    run on records of the same layout starts computing at once: in ``$JAXFLEX_CACHE_DIR`` if
+    set (empty: no cache), else ``$XDG_CACHE_HOME/jaxflex`` or ``~/.cache/jaxflex``. JAX's own
+    ``JAX_COMPILATION_CACHE_DIR`` wins when set; nothing changes once JAX has compiled."""
+    import os
+    from pathlib import Path
+
+    import jax
+
+    if os.environ.get("JAX_COMPILATION_CACHE_DIR") or jax.config.jax_compilation_cache_dir:
+        return
+    folder = os.environ.get("JAXFLEX_CACHE_DIR")
+    if folder is None:
+        base = os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache"
+        folder = str(Path(base) / "jaxflex")
+    if folder:
+        jax.config.update("jax_compilation_cache_dir", folder)
 
 
 def _on_sigterm(prefix: str):
