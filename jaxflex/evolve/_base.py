@@ -5,8 +5,8 @@ Every strategy searches the unit box ``[0, 1]^d`` (the caller maps to physical u
 Non-finite fitness values are replaced by ``+inf`` (:func:`evaluate`), so a simulation that
 blows up in part of the box is simply the worst candidate and NaN never enters a population.
 
-:func:`run` jit-compiles one generation once and loops over generations in Python, so that it
-can report progress and record the history of the search.
+:func:`run` compiles a generation once and loops over generations in Python, so that it can
+report progress and record the history of the search.
 """
 
 from __future__ import annotations
@@ -15,8 +15,7 @@ import abc
 import dataclasses
 import time
 from collections.abc import Callable
-from concurrent.futures import ThreadPoolExecutor
-from typing import Any, ClassVar
+from typing import Any, ClassVar, NamedTuple
 
 import equinox as eqx
 import jax
@@ -267,35 +266,89 @@ def _summary(state: State) -> tuple[Float[Array, ""], Float[Array, ""], Float[Ar
     return state.best_fitness, mean, state.best_x
 
 
-def _init_program(strategy, key, dim, fitness_fn, init_population):
-    state = gathered(strategy.init(key, dim, fitness_fn, init_population))
-    return state, _summary(state)
+def _asked(generation: Callable[[FitnessFn], State]) -> Float[Array, "P d"]:
+    """The population ``generation`` (a strategy's init or step) evaluates, left unevaluated.
 
-
-def _step_program(strategy, state, key, fitness_fn):
-    state = gathered(strategy.step(state, key, fitness_fn))  # the layout the step expects
-    return state, _summary(state)
-
-
-def _compile(strategy, keys, dim, fitness_fn, init_population):
-    """The first-generation and the step programs, compiled at the same time.
-
-    Both contain the whole simulator; compiling them side by side (XLA releases the GIL) takes
-    about the time of one. The step is lowered for the state the first generation returns, in
-    the layout :func:`~jaxflex.parallel.gathered` gives it.
+    The strategy runs with a fitness that only records its argument; what the strategy would do
+    with the values is traced and then dropped from the program.
     """
-    args = (strategy, keys[0], dim, fitness_fn, init_population)
-    init = eqx.filter_jit(_init_program).lower(*args)
-    state_shape, _ = init.postprocess(init.lowered.out_info)  # shapes, without tracing again
+    asked = []
+
+    def record(population):
+        asked.append(population)
+        return jnp.zeros(population.shape[:1], population.dtype)
+
+    generation(record)
+    if len(asked) != 1:
+        raise ValueError(f"a generation must evaluate its population in one call, not {len(asked)}")
+    return gathered(asked[0])
+
+
+def _told(generation: Callable[[FitnessFn], State], fitness: Float[Array, " P"]):
+    """The state ``generation`` reaches when its population's fitness is ``fitness``."""
+    state = gathered(generation(lambda _: fitness))
+    return state, _summary(state)
+
+
+def _ask_first(strategy, key, dim, init_population):
+    return _asked(lambda f: strategy.init(key, dim, f, init_population))
+
+
+def _tell_first(strategy, key, dim, init_population, fitness):
+    return _told(lambda f: strategy.init(key, dim, f, init_population), fitness)
+
+
+def _ask(strategy, state, key):
+    return _asked(lambda f: strategy.step(state, key, f))
+
+
+def _tell(strategy, state, key, fitness):
+    return _told(lambda f: strategy.step(state, key, f), fitness)
+
+
+def _evaluate_program(fitness_fn, population):
+    return gathered(evaluate(fitness_fn, population))
+
+
+class _Programs(NamedTuple):
+    """A run's compiled programs: the strategy's ask and tell of the first generation and of
+    every later one, and the evaluation of a population, which all of them share."""
+
+    ask_first: Callable
+    tell_first: Callable
+    ask: Callable
+    tell: Callable
+    evaluate: Callable
+
+
+def _compile(strategy, keys, dim, fitness_fn, init_population) -> _Programs:
+    """The programs of a run, compiled before it starts.
+
+    The fitness (the whole simulator) is compiled once, as a program of its own: the first
+    generation and the step only propose populations and select from their fitness, so they
+    compile in a fraction of the time (evaluating inside each would compile the simulator
+    twice per run, and once more for every strategy on the same objective). Later programs are
+    lowered for the arrays the earlier ones return, in the layout
+    :func:`~jaxflex.parallel.gathered` gives them.
+    """
     sharding = gathered_sharding()
-    like_state = jax.tree.map(  # small placeholders (filter_jit lowers for arrays, not shapes)
-        lambda x: jnp.zeros(x.shape, x.dtype, device=sharding), state_shape
+
+    def like(lowered):  # small placeholders (filter_jit lowers for arrays, not shapes)
+        shapes = lowered.postprocess(lowered.lowered.out_info)  # without tracing again
+        return jax.tree.map(lambda x: jnp.zeros(x.shape, x.dtype, device=sharding), shapes)
+
+    ask_first = eqx.filter_jit(_ask_first).lower(strategy, keys[0], dim, init_population)
+    population = like(ask_first)
+    evaluate_population = eqx.filter_jit(_evaluate_program).lower(fitness_fn, population)
+    fitness = like(evaluate_population)
+    tell_first = eqx.filter_jit(_tell_first).lower(
+        strategy, keys[0], dim, init_population, fitness
     )
-    step = eqx.filter_jit(_step_program).lower(strategy, like_state, keys[1], fitness_fn)
-    with ThreadPoolExecutor(max_workers=1) as pool:
-        compiled_init = pool.submit(init.compile)
-        compiled_step = step.compile()
-        return compiled_init.result(), compiled_step
+    state, _ = like(tell_first)
+    ask = eqx.filter_jit(_ask).lower(strategy, state, keys[1])
+    tell = eqx.filter_jit(_tell).lower(strategy, state, keys[1], fitness)
+    lowered = (ask_first, tell_first, ask, tell, evaluate_population)
+    return _Programs(*(program.compile() for program in lowered))
 
 
 def _check_init_population(init_population: ArrayLike, population: int, dim: int) -> np.ndarray:
@@ -347,14 +400,17 @@ def run(
     keys = jax.random.split(key, generations + 1)
 
     start = time.perf_counter()
-    init, step = _compile(strategy, keys, dim, fitness_fn, init_population)
+    programs = _compile(strategy, keys, dim, fitness_fn, init_population)
     compiled = time.perf_counter()
-    state, summary = init(strategy, keys[0], dim, fitness_fn, init_population)
+    population = programs.ask_first(strategy, keys[0], dim, init_population)
+    fitness = programs.evaluate(fitness_fn, population)
+    state, summary = programs.tell_first(strategy, keys[0], dim, init_population, fitness)
 
     summaries = [summary]
     bar = Progress(range(1, generations + 1), label=strategy.name, enabled=progress)
     for g in bar:
-        state, summary = step(strategy, state, keys[g], fitness_fn)
+        fitness = programs.evaluate(fitness_fn, programs.ask(strategy, state, keys[g]))
+        state, summary = programs.tell(strategy, state, keys[g], fitness)
         summaries.append(summary)
         if progress:
             bar.set_message(f"best {float(summary[0]):.3e}")
