@@ -527,13 +527,15 @@ def identify(
     intervals: bool = True,
     level: float = 0.95,
     noise: Noise | None = None,
+    tol: float | None = None,
 ) -> Fit:
     """Identify the parameters of ``model`` (default: the reference testbed) from ``records``.
 
     ``method`` is ``"de"``, ``"ga"`` or ``"pso"`` with the paper's settings; ``population``
     overrides the preset's (100), ``strategy_options`` any other setting (e.g. ``{"F": 0.7}``).
     The search runs ``generations`` generations from ``seed`` (same seed → same result) in the
-    unit box of the free parameters; ``bounds`` narrows or widens a parameter's range
+    unit box of the free parameters, fewer if ``tol`` is given and the population's costs agree
+    to it first (:func:`jaxflex.evolve.run`); ``bounds`` narrows or widens a parameter's range
     (``{"J_h": (1e-3, 1e-2)}``), ``fixed`` holds parameters at given values, ``weights`` and
     ``channels`` shape the objective (:func:`jaxflex.objective.build_objective`); ``noise``
     (channel → σ or :class:`~jaxflex.diagnosis.NoiseLevel`, every fitted channel) sets the
@@ -568,6 +570,7 @@ def identify(
         generations=generations,
         init_population=seeds,
         progress=progress,
+        tol=tol,
     )
     best = _physical(objective, evolution.best_x)
     cost_search = float(evolution.best_fitness)
@@ -628,6 +631,8 @@ def identify(
             "method": method,
             "strategy": evolution.settings,
             "generations": generations,
+            "generations_run": evolution.generations,
+            "tol": tol,
             "n_evaluations": evolution.n_evaluations,
             "refine": refine,
             "refine_starts": refine_starts,

@@ -61,6 +61,30 @@ def test_de_best1bin_finds_shifted_sphere():
     assert float(result.best_fitness) < 1e-10
 
 
+def test_a_converged_population_stops_the_run_early_and_changes_nothing_before():
+    """With ``tol`` the run stops at the first generation whose costs agree to it (SciPy's
+    test: std ≤ tol·|mean|); up to there it is the run without ``tol``, bit for bit."""
+
+    def lifted(x):  # minimum 1, so that the relative spread can fall below tol
+        return 1.0 + sphere(x)
+
+    full = run(DE.paper(population=20), lifted, DIM, seed=4, generations=150)
+    early = run(DE.paper(population=20), lifted, DIM, seed=4, generations=150, tol=1e-6)
+    g = early.generations
+    assert 0 < g < 150 and full.generations == 150
+    assert early.n_evaluations == 20 * (g + 1) and early.history_best.shape == (g + 1,)
+    np.testing.assert_array_equal(early.history_best, full.history_best[: g + 1])
+    np.testing.assert_array_equal(early.history_best_x, full.history_best_x[: g + 1])
+    costs = np.asarray(early.final_fitness)
+    assert np.std(costs) <= 1e-6 * abs(np.mean(costs))
+    # the population has gathered at the optimum (within tol), not short of it; the full run
+    # only polishes it further
+    assert float(early.best_fitness) - 1.0 < 1e-6
+    assert float(full.best_fitness) <= float(early.best_fitness)
+    with pytest.raises(ValueError, match="tol must be a positive number or None, got 0"):
+        run(DE.paper(population=20), lifted, DIM, seed=4, tol=0)
+
+
 def test_de_finds_shifted_rosenbrock():
     """Rosenbrock on y = 4u - 1 ∈ [-1, 3]^4, minimum 0 at y = 1, i.e. u = 0.5 (banana valley)."""
 

@@ -305,7 +305,7 @@ def test_cli_identify_writes_the_fit_and_refuses_to_overwrite(clean, tmp_path, c
     paths = [str(save_record(r, tmp_path / f"{r.name}.csv")) for r in clean]
     out, figure = tmp_path / "fit.json", tmp_path / "fit.png"
     argv = ["identify", *paths, "--method", "pso", "--seed", "2", "--generations", "3",
-            "--population", "20", "--no-refine", *_bound_options(), "--quiet",
+            "--population", "20", "--no-refine", *_bound_options(), "--quiet", "--tol", "1e-12",
             "--out", str(out), "--plot", str(figure)]
     assert main(argv) == 0
     printed = capsys.readouterr().out
@@ -314,6 +314,7 @@ def test_cli_identify_writes_the_fit_and_refuses_to_overwrite(clean, tmp_path, c
     assert fit.seed == 2 and fit.method == "pso" and fit.refinement is None
     assert fit.record_names == ("triangular", "pulse", "half_sine")
     assert fit.settings["generations"] == 3 and fit.settings["strategy"]["population"] == 20
+    assert fit.settings["tol"] == 1e-12 and fit.settings["generations_run"] == 3  # not reached
     assert fit.settings["bounds"]["E"] == pytest.approx(list(BOUNDS["E"]))
     assert set(fit.intervals) == set(TRUTH)
     assert any("only indicative" in w for w in fit.warnings)
@@ -324,6 +325,8 @@ def test_cli_identify_writes_the_fit_and_refuses_to_overwrite(clean, tmp_path, c
     assert "lower bound 5.0 must be below upper" in capsys.readouterr().err
     assert main(["identify", paths[0], "--population", "3", "--out", str(tmp_path / "y.json")]) == 2
     assert "population must be an integer >= 4" in capsys.readouterr().err
+    assert main(["identify", paths[0], "--tol", "0", "--out", str(tmp_path / "z.json")]) == 2
+    assert "--tol" in capsys.readouterr().err
 
 
 def test_study_table_and_cli(clean, tmp_path, capsys):

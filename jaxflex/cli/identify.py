@@ -16,6 +16,7 @@ from jaxflex.cli._checks import (
     FIGURE_SUFFIXES,
     JSON_SUFFIXES,
     check_outputs,
+    positive_float,
     positive_int,
     seed,
 )
@@ -34,6 +35,10 @@ def add_search_arguments(p: argparse.ArgumentParser) -> None:
                    help="generations of the search (default: %(default)s)")
     p.add_argument("--population", type=positive_int, metavar="P",
                    help="population size (default: the paper's, 100)")
+    p.add_argument("--tol", type=positive_float, metavar="T",
+                   help="stop the search early once the population's costs agree to T "
+                        "(standard deviation <= T x |mean|, as SciPy's differential_evolution); "
+                        "default: every generation runs")
     p.add_argument("--no-refine", dest="refine", action="store_false",
                    help="skip the Levenberg-Marquardt refinement")
     add_fit_options(p)
@@ -107,6 +112,7 @@ def search(args: argparse.Namespace, records, model, keywords: dict):
         refine=args.refine,
         progress=not args.quiet,
         refine_starts=args.refine_starts,
+        tol=args.tol,
         **keywords,
     )
     check_finite_cost(fit.cost, "bounds" in keywords)

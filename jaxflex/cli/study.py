@@ -113,6 +113,7 @@ def run(args: argparse.Namespace) -> int:
         population=args.population,
         refine=args.refine,
         progress=not args.quiet,
+        tol=args.tol,
         **keywords,
     )
     for r in study.runs:

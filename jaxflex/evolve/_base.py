@@ -241,6 +241,8 @@ class EvolutionResult(eqx.Module):
     ``wall_time`` is the time spent running, ``compile_time`` the time spent compiling the
     initialisation and the generation step (both in seconds). ``final_state`` is the strategy's
     last :class:`State` (for PSO with velocities and personal bests), e.g. to continue a run.
+    ``generations`` is the number run: fewer than asked when the population converged first
+    (``tol`` of :func:`run`).
     """
 
     best_x: Float[Array, " d"]
@@ -251,6 +253,7 @@ class EvolutionResult(eqx.Module):
     final_population: Float[Array, "P d"]
     final_fitness: Float[Array, " P"]
     n_evaluations: int
+    generations: int
     wall_time: float
     compile_time: float
     method: str
@@ -351,6 +354,12 @@ def _compile(strategy, keys, dim, fitness_fn, init_population) -> _Programs:
     return _Programs(*(program.compile() for program in lowered))
 
 
+def _converged(fitness: Float[Array, " P"], tol: float) -> bool:
+    """Whether a population's costs agree to ``tol``: all finite, spread ≤ tol·|mean|."""
+    costs = np.asarray(fitness)
+    return bool(np.all(np.isfinite(costs)) and np.std(costs) <= tol * abs(np.mean(costs)))
+
+
 def _check_init_population(init_population: ArrayLike, population: int, dim: int) -> np.ndarray:
     seeds = np.asarray(init_population, dtype=float)
     if seeds.ndim == 1 and seeds.shape[0] == dim:
@@ -374,6 +383,7 @@ def run(
     init_population: Float[ArrayLike, "k d"] | None = None,
     progress: bool = False,
     callback: Callable[[int, State], None] | None = None,
+    tol: float | None = None,
 ) -> EvolutionResult:
     """Minimise ``fitness_fn`` over ``[0, 1]^dim`` for ``generations`` generations.
 
@@ -382,11 +392,16 @@ def run(
     of shape ``(dim,)``) seeds the first ``k`` members, the rest is uniform random.
     ``fitness_fn`` is called once per generation on the full population, so the run costs
     ``P (generations + 1)`` evaluations. ``callback(g, state)`` is called after every generation
-    ``g = 1..generations``; ``progress`` shows a progress bar on a terminal.
+    ``g = 1..generations``; ``progress`` shows a progress bar on a terminal. With ``tol``, the
+    run stops early once the population has converged: its costs all finite and their standard
+    deviation at most ``tol`` times the magnitude of their mean (the test of SciPy's
+    ``differential_evolution``); each generation then waits for its costs before the next.
     """
     owner = "run"
     check_integer(owner, "dim", dim, 1)
     check_integer(owner, "generations", generations, 1)
+    if tol is not None and not (isinstance(tol, (int, float)) and 0 < tol < float("inf")):
+        raise ValueError(f"run: tol must be a positive number or None, got {tol!r}")
     if (key is None) == (seed is None):
         raise ValueError("run: pass exactly one of key= (a PRNG key) or seed= (an int)")
     if seed is not None:
@@ -416,6 +431,9 @@ def run(
             bar.set_message(f"best {float(summary[0]):.3e}")
         if callback is not None:
             callback(g, state)
+        if tol is not None and _converged(state.fitness, tol):
+            break
+    generations_run = len(summaries) - 1
     best, mean, best_x = (jnp.stack(column) for column in zip(*summaries, strict=True))
     jax.block_until_ready((state, best, mean, best_x))
     wall_time = time.perf_counter() - compiled
@@ -428,7 +446,8 @@ def run(
         history_best_x=best_x,
         final_population=state.population,
         final_fitness=state.fitness,
-        n_evaluations=strategy.population * (generations + 1),
+        n_evaluations=strategy.population * (generations_run + 1),
+        generations=generations_run,
         wall_time=wall_time,
         compile_time=compiled - start,
         method=strategy.name,
