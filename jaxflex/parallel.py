@@ -4,7 +4,8 @@ XLA runs one program on one CPU device single-threaded for programs as small as 
 the simulator, so a vmapped population uses one core. Importing jaxflex therefore exposes one
 JAX CPU device per usable core (:func:`configure_host_devices`), and :func:`population_vmap`
 splits the leading population axis across them: each device runs its share of the candidates in
-its own thread, inside the same compiled program (a DE/GA/PSO generation stays one call).
+its own thread, inside the same compiled program (the evaluation of a DE/GA/PSO generation
+stays one call).
 
 The number of devices comes from ``JAXFLEX_HOST_DEVICES`` if set, else the cores this process
 may use (at most :data:`MAX_HOST_DEVICES`). Nothing changes if JAX was already started, if the
