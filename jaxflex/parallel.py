@@ -39,6 +39,14 @@ _AXIS = "population"
 _T = TypeVar("_T")
 
 
+def usable_cores() -> int:
+    """The cores this process may run on (its CPU affinity on Linux, else the CPU count)."""
+    try:
+        return max(1, len(os.sched_getaffinity(0)))
+    except AttributeError:  # not on Linux
+        return os.cpu_count() or 1
+
+
 def default_host_devices() -> int:
     """``JAXFLEX_HOST_DEVICES`` if set (an integer >= 1), else the usable cores (<= 8)."""
     value = os.environ.get("JAXFLEX_HOST_DEVICES")
@@ -50,11 +58,7 @@ def default_host_devices() -> int:
         if count < 1:
             raise ValueError(f"JAXFLEX_HOST_DEVICES={value!r} must be an integer >= 1")
         return count
-    try:
-        cores = len(os.sched_getaffinity(0))
-    except AttributeError:  # not on Linux
-        cores = os.cpu_count() or 1
-    return max(1, min(cores, MAX_HOST_DEVICES))
+    return min(usable_cores(), MAX_HOST_DEVICES)
 
 
 def configure_host_devices(count: int | None = None) -> None:
@@ -166,4 +170,5 @@ __all__ = [
     "gathered_sharding",
     "population_devices",
     "population_vmap",
+    "usable_cores",
 ]

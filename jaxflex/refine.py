@@ -104,6 +104,7 @@ from jax.scipy.special import ndtri
 from jaxtyping import Array, ArrayLike, Bool, Float
 
 from jaxflex.objective import Objective
+from jaxflex.parallel import usable_cores
 
 RESULT_NAMES: tuple[str, ...] = (
     "successful",
@@ -410,7 +411,7 @@ _TOKENS = itertools.count()
 def _run_system(token, p):
     # a callback runs under jax.default_device(its device): reset it, or every jitted function
     # the system calls compiles a second time for that context
-    with jax.default_device(None):
+    with jax.default_device(None), jax.disable_jit(False):
         r, jac = _SYSTEMS[int(token)](np.asarray(p))
     return np.asarray(r, dtype=np.float64), np.asarray(jac, dtype=np.float64)
 
@@ -444,12 +445,19 @@ def bounded_least_squares_of(system: System, size: int, start: ArrayLike, lower:
     The solve compiles without the model in it (a few seconds, once per size) and the
     caller's own compiled Jacobian serves it: discovery's forward-mode block, which its score
     tests compile anyway, instead of a second compilation of the simulator's derivatives.
+    On a single usable core the solve runs uncompiled instead: XLA's CPU runtime then has one
+    worker, which a compiled solve would hold while the system's compiled code waits for it.
     """
     token = next(_TOKENS)
     _SYSTEMS[token] = system
     try:
         args = (jnp.asarray(token), jnp.zeros(size))
-        return bounded_least_squares(_host_residuals, args, start, lower, upper, **options)
+        if usable_cores() > 1:
+            return bounded_least_squares(_host_residuals, args, start, lower, upper, **options)
+        with jax.disable_jit():
+            return bounded_least_squares(
+                _host_residuals, args, start, lower, upper, solve=_bounded_solve, **options
+            )
     finally:
         del _SYSTEMS[token]
 

@@ -266,6 +266,55 @@ def test_bounded_least_squares_solves_box_problems_as_scipy_does():
 # ------------------------------------------------------------------------------ bad input
 
 
+
+ONE_CORE_SOLVE = """
+import json, sys
+import jax, jax.numpy as jnp, numpy as np
+from jaxflex.refine import bounded_least_squares_of
+
+t = jnp.linspace(0.0, 2.0, 60)
+
+def decay(p):  # the fit's model, stepped in time as a simulator is (a loop in the program)
+    step = jnp.exp(-p[1] * (t[1] - t[0]))
+    def advance(y, _):
+        return y * step, y
+    _, y = jax.lax.scan(advance, p[0], None, length=t.shape[0])
+    return y + p[2] - jnp.exp(-3.0 * t) * (1 + 0.1 * jnp.sin(7 * t))
+
+@jax.jit
+def system(p):  # compiled code, called back from the solve
+    return decay(p), jax.jacfwd(decay)(p)
+
+fit = bounded_least_squares_of(system, 60, np.array([1.0, 1.0, 0.0]), np.array([0.1, 0.5, -1.0]),
+                               np.array([5.0, 2.5, 1.0]), rtol=1e-12, atol=1e-14, max_steps=100)
+print(json.dumps({"value": fit.value.tolist(), "cost": fit.cost}))
+"""
+
+
+def test_on_one_core_the_host_system_solve_runs_uncompiled_and_agrees():
+    """On a single usable core XLA's CPU runtime has one worker, which a compiled solve holds
+    while it calls the system back: discovery's refit of the 2 s example record hung there,
+    its Jacobian's compiled code waiting for that worker. On one core the solve runs
+    uncompiled (the system's own code stays compiled) and ends where the compiled solve ends
+    on several cores."""
+    import os
+    import subprocess
+    import sys
+
+    runs = {}
+    for cores in ({0}, os.sched_getaffinity(0)):
+        done = subprocess.run(
+            [sys.executable, "-c", ONE_CORE_SOLVE], capture_output=True, text=True, timeout=120,
+            preexec_fn=lambda cores=cores: os.sched_setaffinity(0, cores),
+        )
+        assert done.returncode == 0, done.stderr[-2000:]
+        runs[len(cores)] = json.loads(done.stdout.strip().splitlines()[-1])
+    one, several = runs[1], runs[max(runs)]
+    assert max(runs) > 1  # the machine has more than one core to compare with
+    np.testing.assert_allclose(one["value"], several["value"], rtol=0, atol=1e-9)
+    assert one["cost"] == pytest.approx(several["cost"], rel=1e-12)
+
+
 def test_bad_input_gets_a_clear_error(clean):
     with pytest.raises(ValueError, match="bounds for J_h: lower bound 0.1 must be below upper"):
         identify(clean, bounds={"J_h": (0.1, 0.01)})
