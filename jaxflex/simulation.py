@@ -219,9 +219,9 @@ def _joint_velocity_solve(friction, target: Array, gain: Array, guess: Array):
 
 
 def _friction_at_root(friction_and_slope, params: Params, v: Array, evaluated):
-    """``friction_and_slope(params, v)`` whose value is ``evaluated``, the solve's own evaluation
-    at ``v``: the step reuses it instead of evaluating the law once more, and derivatives (with
-    respect to the parameters and ``v``) come from the law itself, only when asked for."""
+    """``friction_and_slope(params, v)``, taken from ``evaluated`` (the solve's own evaluation
+    at ``v``) when nothing differentiates it: a plain run evaluates the law once less per
+    step. Differentiated (to any order), it is the law itself, values and derivatives."""
 
     @jax.custom_jvp
     def at_root(params, v, evaluated):
@@ -229,10 +229,9 @@ def _friction_at_root(friction_and_slope, params: Params, v: Array, evaluated):
 
     @at_root.defjvp
     def at_root_jvp(primals, tangents):
-        params, v, evaluated = primals
+        params, v, _ = primals
         d_params, d_v, _ = tangents
-        _, tangent = jax.jvp(friction_and_slope, (params, v), (d_params, d_v))
-        return evaluated, tangent
+        return jax.jvp(friction_and_slope, (params, v), (d_params, d_v))
 
     return at_root(params, v, evaluated)
 
