@@ -155,7 +155,8 @@ def _bracketed_newton(residual, lo: Array, hi: Array, guess: Array):
     bisection, so every iteration shrinks it; the loop stops when the residual is at round-off,
     the Newton step is below an ulp of ``v``, the bracket has collapsed or an iteration left
     ``v`` unchanged, and after :data:`MAX_FRICTION_ITERATIONS` at the latest. Every lane ends
-    on a point it evaluated. Returns the root, the iterations taken and ``extra`` at the root.
+    on a point it evaluated. The first iteration, which every lane needs, is straight-line code
+    before the loop. Returns the root, the iterations taken and ``extra`` at the root.
     """
     eps = jnp.finfo(jnp.result_type(guess)).eps
 
@@ -187,7 +188,9 @@ def _bracketed_newton(residual, lo: Array, hi: Array, guess: Array):
     unset = jnp.full_like(v0, jnp.nan)
     extra = jax.tree.map(jnp.zeros_like, jax.eval_shape(residual, v0)[3])
     start = (v0, unset, lo, hi, jnp.zeros_like(v0, dtype=bool), jnp.zeros((), int), extra)
-    v, _, _, _, _, count, extra = jax.lax.while_loop(running, step, start)
+    # every lane evaluates at least once: the first iteration outside the loop spares a turn of
+    # it (each turn a round trip through XLA's runtime) wherever one iteration converges them all
+    v, _, _, _, _, count, extra = jax.lax.while_loop(running, step, step(start))
     return v, count, extra
 
 
@@ -383,22 +386,39 @@ def simulate_core(
     def law_and_slope(params, v):
         return jax.jvp(lambda v: model.friction(params, v), (v,), (jnp.ones_like(v),))
 
+    def load_forces(theta, vel):
+        """Rigid acceleration and modal force of the position-dependent loads, and their
+        amplitudes."""
+        amp = model.load_amplitudes(params, theta, vel)
+        return (amp @ system.load_hub) * inv_j, amp @ system.load_modal, amp
+
     def explicit_forces(theta, vel, vel_r, deta):
         """Rigid acceleration, modal force (loads and the off-diagonal mass damping) and the
         forcing ``[u − αJ·pᵀη', loads]`` of the truncated modes without its ``u``."""
-        amp = model.load_amplitudes(params, theta, vel)
-        rigid = (amp @ system.load_hub) * inv_j
+        rigid, loads, amp = load_forces(theta, vel)
         flex_velocity = vel - vel_r  # pᵀη'
-        modal = amp @ system.load_modal - system.coupling * (p * flex_velocity - p2 * deta)
+        modal = loads - system.coupling * (p * flex_velocity - p2 * deta)
         return rigid, modal, (-system.coupling * flex_velocity, amp)
+
+    # the free step with the mass-damping coupling ``αJ·(p²η' − p·pᵀη')`` folded into its
+    # coefficients, formed once (measured 1.3× faster at 50 candidates a device than applying
+    # it as a force each step): η_free = p11·η + a12·η' + bx·pᵀη' (+ gx·loads), likewise η'
+    coupled = system.coupling * p2
+    a12, a22 = maps.p12 + coupled * maps.gx, maps.p22 + coupled * maps.gv
+    bx, bv = -system.coupling * gx_p, -system.coupling * gv_p
+    has_loads = system.load_modal.shape[0] > 0
 
     def substep(state, tau):
         theta_r, vel_r, eta, deta, vel, f_vel, df_vel = state
-        rigid, modal, _ = explicit_forces(theta_r + p @ eta, vel, vel_r, deta)
-        eta_free = maps.p11 * eta + maps.p12 * deta + maps.gx * modal
-        deta_free = maps.p21 * eta + maps.p22 * deta + maps.gv * modal
-        vel_r_free = vel_r + h * rigid
-        theta_r_free = theta_r + h * vel_r + 0.5 * h**2 * rigid
+        flex_velocity = vel - vel_r  # pᵀη'
+        eta_free = maps.p11 * eta + a12 * deta + bx * flex_velocity
+        deta_free = maps.p21 * eta + a22 * deta + bv * flex_velocity
+        theta_r_free, vel_r_free = theta_r + h * vel_r, vel_r
+        if has_loads:
+            rigid, loads, _ = load_forces(theta_r + p @ eta, vel)
+            eta_free, deta_free = eta_free + maps.gx * loads, deta_free + maps.gv * loads
+            vel_r_free = vel_r + h * rigid
+            theta_r_free = theta_r_free + 0.5 * h**2 * rigid
         target = vel_r_free + p @ deta_free + gain * (tau - (1.0 - w) * f_vel)
         v_end, evaluated = _joint_velocity_solve(
             friction, target, w * gain, _warm_start(vel, f_vel, df_vel, target, w * gain)
