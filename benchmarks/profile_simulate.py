@@ -3,7 +3,7 @@
 Measures what limits the simulator's throughput (``benchmarks/simulate.py`` reports the
 throughput itself): the number of XLA kernels inside the compiled time loop, and the run time
 of a plain one-device vmap (best of 5) as the population, the number of finite elements and the
-cap on the friction solve's iterations change, and how many iterations that solve takes. A
+plain Newton steps of the friction solve change, and how that solve converges. A
 straight-line fit of time against population separates the fixed cost of a step (kernel
 launches) from the cost per candidate.
 Writes ``benchmarks/results/profile_simulate.json``.
@@ -84,8 +84,10 @@ def kernels_per_sample(model: Model, torque) -> tuple[dict[str, int], dict[str, 
 
 
 def friction_iterations(model: Model, torque, population: int = 10) -> dict[str, float]:
-    """Iterations of the friction solve per sub-step: per candidate, and the most in the
-    population (what a vmapped loop runs), recorded by a host callback in each solve."""
+    """How the friction solve converges, per sub-step: the share of candidates' steps that the
+    plain Newton steps did not converge (solved again by the safeguarded loop), the share of
+    vmapped steps in which that loop ran for some candidate, and the law's evaluations per
+    candidate, recorded by a host callback in each solve."""
     counts = []
     solve = simulator._bracketed_newton
 
@@ -102,11 +104,15 @@ def friction_iterations(model: Model, torque, population: int = 10) -> dict[str,
     finally:
         simulator._bracketed_newton = solve
     per_step = np.asarray(counts).reshape(-1, population)  # the callback runs lane by lane
+    loop = per_step - (simulator.NEWTON_STEPS + 1)  # evaluations after the plain steps
     return {
         "population": population,
-        "mean_per_candidate": float(per_step.mean()),
-        "max_per_candidate": int(per_step.max()),
-        "mean_of_population_max": float(per_step.max(axis=1).mean()),
+        "plain_newton_steps": simulator.NEWTON_STEPS,
+        "share_of_candidate_steps_solved_by_the_loop": float((loop > 0).mean()),
+        "share_of_vmapped_steps_running_the_loop": float((loop > 0).any(axis=1).mean()),
+        "evaluations_per_candidate_step": float(per_step.mean()),
+        "loop_iterations_per_vmapped_step": float(loop.max(axis=1).mean()),
+        "most_loop_iterations": int(loop.max()),
     }
 
 
@@ -129,15 +135,19 @@ def main() -> None:
 
     iterations = friction_iterations(model, torque)
     print(
-        f"friction iterations per sub-step (population {iterations['population']}): "
-        f"{iterations['mean_per_candidate']:.2f} per candidate (at most "
-        f"{iterations['max_per_candidate']}), {iterations['mean_of_population_max']:.2f} per "
-        "vmapped loop"
+        f"friction solve (population {iterations['population']}): "
+        f"{iterations['share_of_candidate_steps_solved_by_the_loop']:.2e} of the candidates' "
+        f"sub-steps need the safeguarded loop (at most {iterations['most_loop_iterations']} "
+        f"iterations), {iterations['share_of_vmapped_steps_running_the_loop']:.2e} of the vmapped "
+        f"sub-steps run it; {iterations['evaluations_per_candidate_step']:.3f} evaluations of "
+        "the law per candidate and sub-step"
     )
     total = launched + (
-        model.n_substeps * iterations["mean_of_population_max"] * per_friction_iteration
+        model.n_substeps
+        * iterations["loop_iterations_per_vmapped_step"]
+        * per_friction_iteration
     )
-    print(f"kernel launches per sample, friction iterations included: {total:.0f}")
+    print(f"kernel launches per sample, the loop's iterations included: {total:.0f}")
 
     populations = [1, 10, 25, 50, 100]
     per_population = [best_time(model, p, torque) for p in populations]
@@ -156,15 +166,16 @@ def main() -> None:
         print(f"n_el {n_el:2d} ({2 * n_el} modes), population 100: {per_mesh[n_el] * 1e3:.1f} ms")
 
 
-    per_limit = {}
-    default = simulator.MAX_FRICTION_ITERATIONS
-    try:  # the friction solve stops at round-off: a lower cap only matters if it is reached
-        for n in (default, 4):
-            simulator.MAX_FRICTION_ITERATIONS = n
-            per_limit[n] = best_time(model, 100, torque)
-            print(f"friction iterations capped at {n}, population 100: {per_limit[n] * 1e3:.1f} ms")
+    per_steps = {}
+    default = simulator.NEWTON_STEPS
+    try:  # 0: every lane's solve after its first evaluation is the safeguarded loop's
+        for n in (0, 1, 2, 3):
+            simulator.NEWTON_STEPS = n
+            per_steps[n] = best_time(model, 100, torque)
+            print(f"{n} plain Newton steps before the loop, population 100: "
+                  f"{per_steps[n] * 1e3:.1f} ms")
     finally:
-        simulator.MAX_FRICTION_ITERATIONS = default
+        simulator.NEWTON_STEPS = default
 
     write_json(
         args.out,
@@ -182,8 +193,8 @@ def main() -> None:
             "linear_fit": {"fixed_s": intercept, "per_candidate_s": slope},
             "time_vs_elements_at_population_100_s": {str(k): v for k, v in per_mesh.items()},
             "friction_iterations_per_substep": iterations,
-            "time_vs_friction_iteration_cap_at_population_100_s": {
-                str(k): v for k, v in per_limit.items()
+            "time_vs_plain_newton_steps_at_population_100_s": {
+                str(k): v for k, v in per_steps.items()
             },
             "load_average_1_5_15min_at_end": list(os.getloadavg()),
             **provenance(),

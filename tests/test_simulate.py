@@ -286,6 +286,33 @@ def test_friction_solve_stops_well_before_its_limit():
         assert int(count) <= 12, (target, count)
 
 
+@pytest.mark.parametrize("target, guess", [(0.02, 0.0), (0.02, 0.01), (0.004, 0.0)])
+def test_safeguarded_loop_solves_what_the_plain_newton_steps_leave(target, guess):
+    """A start on the far side of the smooth-Coulomb knee: the plain Newton steps overshoot, the
+    round-off test fails and the bracketed loop takes over, ending on brentq's root with the
+    law's friction and slope there."""
+    simulator = sys.modules["jaxflex.simulation"]
+    gain = 0.05
+
+    def residual(v):
+        f, df = jax.jvp(_base_friction, (v,), (1.0,))
+        scale = abs(v) + abs(gain * f) + abs(target)
+        return v + gain * f - target, 1.0 + gain * df, scale, (f, df)
+
+    root, count, (f_root, slope_root) = simulator._bracketed_newton(
+        residual, 0.0, target, jnp.float64(guess)
+    )
+    assert simulator.NEWTON_STEPS + 1 < int(count) < simulator.MAX_FRICTION_ITERATIONS // 2
+    expected = brentq(
+        lambda v: v + gain * float(_base_friction(v)) - target,
+        0.0, target, xtol=1e-300, rtol=4 * np.finfo(float).eps,
+    )
+    assert float(root) == pytest.approx(expected, rel=1e-14, abs=0)
+    f_law, slope_law = jax.jvp(_base_friction, (root,), (1.0,))
+    assert float(f_root) == pytest.approx(float(f_law), rel=1e-14, abs=0)
+    assert float(slope_root) == pytest.approx(float(slope_law), rel=1e-14, abs=0)
+
+
 @pytest.mark.parametrize("name", ["triangular", "pulse", "half_sine"])
 def test_truncated_modes_keep_the_accuracy_against_radau(name):
     """Eight advanced modes plus the others' static response: the tolerances of the full model."""
@@ -321,8 +348,8 @@ def test_static_response_of_truncated_modes():
 
 def test_warm_start_lands_on_the_root_while_sliding():
     """From the previous step's velocity, friction and slope, one Newton step (no evaluation)
-    starts the solve within round-off of the root while sliding, so the solve stops at its first
-    residual; near zero velocity it still converges to brentq's root."""
+    starts the solve within round-off of the root while sliding, so the plain Newton steps end
+    converged; near zero velocity it still converges to brentq's root."""
     simulator = sys.modules["jaxflex.simulation"]
     gain = 0.05
     for previous, change in ((0.5, 1e-4), (-2.0, -3e-3), (0.3, -1e-3), (2e-3, -3e-3)):
@@ -347,4 +374,8 @@ def test_warm_start_lands_on_the_root_while_sliding():
         assert float(f_root) == pytest.approx(float(f_law), rel=1e-14, abs=0)
         assert float(slope_root) == pytest.approx(float(slope_law), rel=1e-14, abs=0)
         if abs(previous) >= 30 * 0.01:  # far from the smooth-Coulomb knee (ω_s = 0.01)
-            assert int(count) == 1, (previous, change, count)
+            r, _, scale, _ = residual(guess)
+            eps = np.finfo(float).eps
+            assert abs(float(r)) <= simulator.RESIDUAL_ULPS * eps * float(scale), (previous, r)
+            # so the plain Newton steps end converged and the safeguarded loop never runs
+            assert int(count) == simulator.NEWTON_STEPS + 1, (previous, change, count)
