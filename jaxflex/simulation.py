@@ -14,7 +14,7 @@ hold) and does three things:
    and the result does not depend on how a compiler rounds the iterations. It starts from a
    Newton step off the previous step's velocity with the friction and slope carried there,
    takes two plain Newton steps as straight-line code, and only where the round-off test then
-   fails (a few lanes in 10,000 steps) solves again with a safeguarded loop; it hands on the
+   fails (0.05–0.2 % of the steps) solves again with a safeguarded loop; it hands on the
    friction it evaluated at the root (no further evaluation of the law);
 3. applies the weak rank-one mass-damping coupling (folded into the step's coefficients) and
    position-dependent loads (gravity) explicitly from the start of the step.
@@ -52,8 +52,8 @@ RESIDUAL_ULPS = 16.0
 """The friction residual counts as converged within this many ulps of its terms."""
 NEWTON_STEPS = 2
 """Plain Newton steps of the friction solve before its round-off test; a lane that fails the
-test (a few in 10,000 steps) is solved again by the safeguarded loop. Straight-line steps cost
-far less than turns of a loop (measured: 1.5× faster simulations than the loop alone)."""
+test (0.05–0.2 % of the steps) is solved again by the safeguarded loop. Straight-line steps cost
+far less than turns of a loop (``benchmarks/profile_simulate.py`` times 0 to 3 of them)."""
 SCAN_UNROLL = 1
 #: Weight of the end-of-step friction (θ-method): 0.5 is trapezoidal, 1 backward Euler.
 FRICTION_THETA = 0.55
@@ -160,10 +160,10 @@ def _bracketed_newton(residual, lo: Array, hi: Array, guess: Array):
 
     First :data:`NEWTON_STEPS` plain Newton steps from ``guess``, straight-line code that XLA
     fuses; a lane whose result lies in the bracket with its residual at round-off is done. The
-    others (a few in 10,000: breakaway, stops) restart from ``guess`` in a safeguarded loop:
-    Newton steps that leave the bracket fall back to bisection, so every iteration shrinks it;
-    it stops when the residual is at round-off, the Newton step is below an ulp of ``v``, the
-    bracket has collapsed or an iteration left ``v`` unchanged, and after
+    others (0.05–0.2 % of the steps: breakaway, stops) restart from ``guess`` in a safeguarded
+    loop: Newton steps that leave the bracket fall back to bisection, so every iteration shrinks
+    it; it stops when the residual is at round-off, the Newton step is below an ulp of ``v``,
+    the bracket has collapsed or an iteration left ``v`` unchanged, and after
     :data:`MAX_FRICTION_ITERATIONS` at the latest. Every lane ends on a point it evaluated.
     Returns the root, the evaluations taken and ``extra`` at the root.
     """
@@ -214,6 +214,7 @@ def _bracketed_newton(residual, lo: Array, hi: Array, guess: Array):
     )
     v, _, _, _, _, count, extra = jax.lax.while_loop(running, step, start)
     return v, count, extra
+
 
 def _joint_velocity_solve(friction, target: Array, gain: Array, guess: Array):
     """Solve ``v + gain·f(v) = target`` for the end-of-step joint velocity ``v``.
