@@ -238,6 +238,18 @@ def _base_friction(v):
     return float(REFERENCE["b_v"]) * v + float(REFERENCE["tau_c"]) * jnp.tanh(v / 0.01)
 
 
+def _friction_residual(target, gain=0.05):
+    """``v + gain·f(v) − target`` as the friction solve evaluates it: with its slope, the size
+    of its terms and the law's friction and slope there."""
+
+    def residual(v):
+        f, df = jax.jvp(_base_friction, (v,), (1.0,))
+        scale = abs(v) + abs(gain * f) + abs(target)
+        return v + gain * f - target, 1.0 + gain * df, scale, (f, df)
+
+    return residual
+
+
 @pytest.mark.parametrize("target", [1e-9, -3e-4, 0.004, 0.02, 0.5, -2.0])
 @pytest.mark.parametrize("guess_share", [0.0, 0.5, 1.0])
 def test_friction_solve_converges_to_round_off(target, guess_share):
@@ -266,23 +278,12 @@ def test_friction_solve_converges_to_round_off(target, guess_share):
 def test_friction_solve_stops_well_before_its_limit():
     """Few iterations from a start near the root; never the safety limit from a poor one."""
     simulator = sys.modules["jaxflex.simulation"]
-    gain = 0.05
-
-    def with_slope(target):
-        def residual(v):
-            f, df = jax.jvp(_base_friction, (v,), (1.0,))
-            scale = abs(v) + abs(gain * f) + abs(target)
-            return v + gain * f - target, 1.0 + gain * df, scale, ()
-
-        return residual
-
     for target in (1e-9, 3e-4, 0.02, 0.5, 5.0):
+        residual = _friction_residual(target)
         for guess in (0.0, target):
-            _, count, _ = simulator._bracketed_newton(with_slope(target), 0.0, target, guess)
+            _, count, _ = simulator._bracketed_newton(residual, 0.0, target, guess)
             assert int(count) < simulator.MAX_FRICTION_ITERATIONS // 2, (target, guess, count)
-        _, count, _ = simulator._bracketed_newton(
-            with_slope(target), 0.0, target, 0.999 * target
-        )
+        _, count, _ = simulator._bracketed_newton(residual, 0.0, target, 0.999 * target)
         assert int(count) <= 12, (target, count)
 
 
@@ -293,14 +294,8 @@ def test_safeguarded_loop_solves_what_the_plain_newton_steps_leave(target, guess
     law's friction and slope there."""
     simulator = sys.modules["jaxflex.simulation"]
     gain = 0.05
-
-    def residual(v):
-        f, df = jax.jvp(_base_friction, (v,), (1.0,))
-        scale = abs(v) + abs(gain * f) + abs(target)
-        return v + gain * f - target, 1.0 + gain * df, scale, (f, df)
-
     root, count, (f_root, slope_root) = simulator._bracketed_newton(
-        residual, 0.0, target, jnp.float64(guess)
+        _friction_residual(target, gain), 0.0, target, jnp.float64(guess)
     )
     assert simulator.NEWTON_STEPS + 1 < int(count) < simulator.MAX_FRICTION_ITERATIONS // 2
     expected = brentq(
@@ -356,12 +351,7 @@ def test_warm_start_lands_on_the_root_while_sliding():
         target = previous + gain * float(_base_friction(previous)) + change
         f, slope = jax.jvp(_base_friction, (jnp.float64(previous),), (1.0,))
         guess = simulator._warm_start(jnp.float64(previous), f, slope, target, gain)
-
-        def residual(v, target=target):
-            f, df = jax.jvp(_base_friction, (v,), (1.0,))
-            scale = abs(v) + abs(gain * f) + abs(target)
-            return v + gain * f - target, 1.0 + gain * df, scale, (f, df)
-
+        residual = _friction_residual(target, gain)
         lo, hi = min(0.0, target), max(0.0, target)
         root, count, (f_root, slope_root) = simulator._bracketed_newton(residual, lo, hi, guess)
         expected = brentq(
