@@ -47,7 +47,8 @@ from jaxflex.parallel import population_vmap
 from jaxflex.parameters import Params
 
 MAX_FRICTION_ITERATIONS = 100
-"""Upper bound on the friction solve's iterations (it stops at round-off, usually within a few)."""
+"""Upper bound on the friction solve's evaluations of the law (it stops at round-off, usually
+after :data:`NEWTON_STEPS` + 1)."""
 RESIDUAL_ULPS = 16.0
 """The friction residual counts as converged within this many ulps of its terms."""
 NEWTON_STEPS = 2
@@ -210,7 +211,7 @@ def _bracketed_newton(residual, lo: Array, hi: Array, guess: Array):
         hi,
         fast,
         jnp.full_like(v0, NEWTON_STEPS + 1, dtype=int),
-        jax.tree.map(lambda x: jnp.where(fast, x, 0.0), extra),
+        extra,  # where not fast, the loop's first turn replaces it (previous is NaN: it turns)
     )
     v, _, _, _, _, count, extra = jax.lax.while_loop(running, step, start)
     return v, count, extra
