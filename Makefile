@@ -56,6 +56,7 @@ notebooks: $(VENV)/.stamp-dev
 bench: $(VENV)/.stamp-dev
 	$(PY) benchmarks/simulate.py
 	$(PY) benchmarks/profile_simulate.py
+	$(PY) benchmarks/substeps.py
 	$(PY) benchmarks/scaling.py
 	$(PY) benchmarks/identify.py
 	$(PY) benchmarks/design.py
