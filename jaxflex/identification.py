@@ -577,7 +577,7 @@ def identify(
     timing = {"search": evolution.wall_time, "search_compile": evolution.compile_time}
 
     refinement = None
-    estimate, cost = best, cost_search
+    estimate, cost, linearization = best, cost_search, None
     if refine:
         starts = _refinement_starts(objective, evolution, refine_starts)
         refinement = refine_parameters(objective, starts)
@@ -585,6 +585,7 @@ def identify(
         timing["refine_compile"] = refinement.compile_time
         if refinement.accepted and refinement.cost < cost:
             estimate, cost = refinement.params, refinement.cost
+            linearization = refinement.linearization  # the intervals reuse its Jacobian
 
     warnings: list[str] = []
     if not math.isfinite(cost):
@@ -599,7 +600,7 @@ def identify(
     unc = None
     if intervals and math.isfinite(cost):
         t0 = time.perf_counter()
-        unc = uncertainty(objective, estimate, level=level)
+        unc = uncertainty(objective, estimate, level=level, linearization=linearization)
         timing["uncertainty"] = time.perf_counter() - t0
         warnings += unc.warnings
     timing["total"] = time.perf_counter() - t_start

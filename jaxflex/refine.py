@@ -138,6 +138,8 @@ class Refinement:
     cost; ``end``/``cost_end`` are where the solver stopped. ``result`` is the optimistix result
     code by name (``"successful"``, ``"nonlinear_max_steps_reached"``, …) and ``steps`` the
     number of Levenberg–Marquardt steps; with several starts, these describe the best one.
+    ``linearization`` holds the residuals and their Jacobian in the unit box at ``end`` (from
+    the solver's last step; not serialised), which :func:`uncertainty` can reuse.
     """
 
     start: dict[str, float]
@@ -151,6 +153,8 @@ class Refinement:
     wall_time: float
     compile_time: float
     n_starts: int = 1
+    linearization: tuple[np.ndarray, np.ndarray] | None = field(default=None, repr=False,
+                                                                 compare=False)
 
     @property
     def params(self) -> dict[str, float]:
@@ -177,7 +181,7 @@ class Refinement:
 
     @classmethod
     def from_dict(cls, data: Mapping) -> Refinement:
-        return cls(**{k: data[k] for k in cls.__dataclass_fields__})
+        return cls(**{k: data[k] for k in cls.__dataclass_fields__ if k != "linearization"})
 
 
 def dense_jacobian(fn: Callable[[Array], Array]) -> Callable[[Array], Array]:
@@ -336,7 +340,9 @@ def _bounded_solve(residuals: Residuals, args, start, lower, upper, free, rtol, 
     y, state, cost_start, cost, done, steps = jax.lax.while_loop(proceed, step, init)
     state = eqx.combine(state, static)
     result = optx.RESULTS.where(done, state.result, optx.RESULTS.nonlinear_max_steps_reached)
-    return jnp.where(free, y, start), result, steps, cost_start, cost
+    # the residuals and Jacobian the last accepted step evaluated, at y
+    linearization = (state.f_info.residual, state.f_info.jac.as_matrix())
+    return jnp.where(free, y, start), result, steps, cost_start, cost, linearization
 
 
 _bounded_solve_jit = eqx.filter_jit(_bounded_solve)
@@ -344,7 +350,9 @@ _bounded_solve_jit = eqx.filter_jit(_bounded_solve)
 
 @dataclass(frozen=True)
 class BoundedSolution:
-    """Outcome of :func:`bounded_least_squares` (costs are ``Σ r²``)."""
+    """Outcome of :func:`bounded_least_squares` (costs are ``Σ r²``). ``linearization`` is the
+    residual vector and its Jacobian at ``value`` from the solver's last accepted step (None
+    where the start was kept)."""
 
     value: np.ndarray
     cost_start: float
@@ -352,6 +360,7 @@ class BoundedSolution:
     result: str
     message: str
     steps: int
+    linearization: tuple[np.ndarray, np.ndarray] | None = field(default=None, repr=False)
 
 
 def bounded_least_squares(
@@ -386,8 +395,9 @@ def bounded_least_squares(
     lower, upper = jnp.asarray(lower, dtype=jnp.float64), jnp.asarray(upper, dtype=jnp.float64)
     free = jnp.ones(p.shape, bool) if free is None else jnp.asarray(free, dtype=bool)
     p = jnp.where(free, jnp.clip(p, lower, upper), p)
-    end, result, steps, cost_start, cost = solve(residuals, args, p, lower, upper, free, rtol,
-                                                 atol, ftol, max_steps, marquardt)
+    end, result, steps, cost_start, cost, linearization = solve(
+        residuals, args, p, lower, upper, free, rtol, atol, ftol, max_steps, marquardt
+    )
     cost_start, cost = float(cost_start), float(cost)
     cost_start = cost_start if math.isfinite(cost_start) else math.inf
     better = math.isfinite(cost) and cost < cost_start
@@ -398,6 +408,7 @@ def bounded_least_squares(
         result=_result_name(result),
         message=optx.RESULTS[result] or "converged",
         steps=int(steps),
+        linearization=tuple(map(np.asarray, linearization)) if better else None,
     )
 
 
@@ -527,6 +538,7 @@ def refine(
         wall_time=wall_time,
         compile_time=compile_time,
         n_starts=len(starts),
+        linearization=best.linearization,
     )
 
 
@@ -599,6 +611,19 @@ def _jacobian(objective: Objective, phi: Float[Array, " d"]):
 _jacobian_jit = eqx.filter_jit(_jacobian)
 
 
+def _phi_linearization(objective: Objective, x: np.ndarray, linearization):
+    """A unit-box linearisation ``(r, ∂r/∂u)`` at ``x`` in the coordinates ``φ``
+    (``∂φ/∂u`` is ``log(hi/lo)`` on a log scale, ``hi − lo`` otherwise), or None where a
+    parameter lies on a bound: the box map clips there, and its derivative is not ``φ``'s."""
+    lower = np.array([s.lower for s in objective.specs])
+    upper = np.array([s.upper for s in objective.specs])
+    if linearization is None or not np.all((x > lower) & (x < upper)):
+        return None
+    log, _, _ = _coordinate_maps(objective)
+    residuals, unit_jacobian = linearization
+    return residuals, unit_jacobian / np.where(log, np.log(upper / lower), upper - lower)
+
+
 def _describe_direction(names, vector, cutoff=0.3) -> str:
     order = np.argsort(-np.abs(vector))
     terms = [f"{vector[i]:+.2f}·{names[i]}" for i in order if abs(vector[i]) >= cutoff]
@@ -613,10 +638,14 @@ def uncertainty(
     null_threshold: float = 1e-8,
     wide_ratio: float = 2.0,
     hac_lags: int = 0,
+    linearization: tuple[np.ndarray, np.ndarray] | None = None,
 ) -> Uncertainty:
     """Gauss–Newton covariance, ``level`` intervals and identifiability at ``params``.
 
     ``params`` holds (at least) the free parameters of ``objective``, in physical units.
+    ``linearization``, the residuals and their unit-box Jacobian at ``params`` (a refinement's
+    :attr:`Refinement.linearization`), is reused where every parameter lies inside its bounds
+    instead of compiling and evaluating the Jacobian again.
     """
     if not 0.0 < level < 1.0:
         raise ValueError(f"level must be in (0, 1), got {level!r}")
@@ -630,7 +659,8 @@ def uncertainty(
         raise ValueError(f"uncertainty: parameter value(s) missing for {missing}")
     x = np.array([float(params[n]) for n in names])
     log, to_phi, _ = _coordinate_maps(objective)
-    r, jac = _jacobian_jit(objective, to_phi(jnp.asarray(x)))
+    reused = _phi_linearization(objective, x, linearization)
+    r, jac = reused or _jacobian_jit(objective, to_phi(jnp.asarray(x)))
     r, jac = np.asarray(r), np.asarray(jac)
     if not (np.all(np.isfinite(r)) and np.all(np.isfinite(jac))):
         raise ValueError("uncertainty: the simulation is not finite at the estimate")

@@ -134,6 +134,10 @@ def _coverage(seeds):
         assert again.cost <= again.cost_start and again.cost <= result.cost * (1 + 1e-9)
         assert again.accepted == (again.cost_end < again.cost_start)
         unc = uncertainty(objective, result.params)
+        # the refinement's own Jacobian (unit box, its last step) gives the same intervals
+        reused = uncertainty(objective, result.params, linearization=result.linearization)
+        for a, b in ((unc.std, reused.std), (unc.lower, reused.lower), (unc.upper, reused.upper)):
+            np.testing.assert_allclose(b, a, rtol=1e-8, atol=0)
         hits.append(list(unc.contains(TRUTH).values()))
         std_log = np.log(unc.upper / unc.lower) / (2 * 1.959964)
         z_scores.append((np.log(unc.estimate) - np.log(list(TRUTH.values()))) / std_log)
