@@ -621,7 +621,8 @@ def _phi_linearization(objective: Objective, x: np.ndarray, linearization):
         return None
     log, _, _ = _coordinate_maps(objective)
     residuals, unit_jacobian = linearization
-    return residuals, unit_jacobian / np.where(log, np.log(upper / lower), upper - lower)
+    ratio = np.where(log, upper, 1.0) / np.where(log, lower, 1.0)  # 1 where linear
+    return residuals, unit_jacobian / np.where(log, np.log(ratio), upper - lower)
 
 
 def _describe_direction(names, vector, cutoff=0.3) -> str:

@@ -134,7 +134,9 @@ def _coverage(seeds):
         assert again.cost <= again.cost_start and again.cost <= result.cost * (1 + 1e-9)
         assert again.accepted == (again.cost_end < again.cost_start)
         unc = uncertainty(objective, result.params)
-        # the refinement's own Jacobian (unit box, its last step) gives the same intervals
+        # inside the box, the refinement's own Jacobian (unit box, its last step) gives the
+        # same intervals
+        assert all(lo < result.params[n] < hi for n, (lo, hi) in BOUNDS.items())
         reused = uncertainty(objective, result.params, linearization=result.linearization)
         for a, b in ((unc.std, reused.std), (unc.lower, reused.lower), (unc.upper, reused.upper)):
             np.testing.assert_allclose(b, a, rtol=1e-8, atol=0)
