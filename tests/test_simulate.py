@@ -8,11 +8,10 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
-from reference_solver import radau_reference
+from reference_solver import designed_torque, radau_reference
 from scipy.optimize import brentq
 
 import jaxflex
-from jaxflex.design import fourier_basis
 from jaxflex.frequency_response import frf, natural_frequencies
 from jaxflex.model import Model
 from jaxflex.signals import reference_input
@@ -119,9 +118,7 @@ def test_accuracy_against_radau_on_a_designed_input():
     """A designed input (jaxflex.design's Fourier basis up to 20 Hz, seeded coefficients) changes
     the torque at every sample, unlike the paper's three: the same tolerances hold."""
     model = Model()
-    basis = fourier_basis(1.0, 1e-3, harmonics=20, ramp=0.1)
-    shape = np.random.default_rng(0).standard_normal(basis.shape[0]) @ basis
-    torque = 0.3 * shape / np.max(np.abs(shape))
+    torque = designed_torque()
     reference = radau_reference(model, REFERENCE, torque, 1e-3)
     out = simulate(model, REFERENCE, torque)
     assert nrmse(reference[0], np.asarray(out.joint_angle)) <= 0.05
