@@ -28,7 +28,7 @@ from profile_simulate import compiled_batch  # noqa: E402
 from reference_solver import designed_torque, radau_reference  # noqa: E402
 
 import jaxflex  # noqa: E402
-from jaxflex._io import provenance, write_json  # noqa: E402
+from jaxflex._io import OutputError, check_writable, provenance, write_json  # noqa: E402
 from jaxflex.metrics import nrmse  # noqa: E402
 from jaxflex.model import Model  # noqa: E402
 from jaxflex.signals import reference_input  # noqa: E402
@@ -64,6 +64,10 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--out", default=str(RESULTS))
     args = parser.parse_args()
+    try:  # before any work
+        out = check_writable(args.out, overwrite=True, suffixes=(".json",))
+    except OutputError as error:
+        parser.error(str(error))
     params = jaxflex.reference_parameters()
     torques = inputs()
     references = {name: radau_reference(Model(), params, t, 1e-3) for name, t in torques.items()}
@@ -96,7 +100,7 @@ def main() -> None:
               + f" ({'within' if row['within_targets'] else 'MISSES'} the targets); "
               f"population 100: {seconds * 1e3:.1f} ms")
     write_json(
-        args.out,
+        out,
         {
             "benchmark": "substeps",
             "settings": {"inputs": list(torques), "targets_percent": TARGETS,
@@ -108,7 +112,7 @@ def main() -> None:
         },
         overwrite=True,
     )
-    print(f"wrote {args.out}")
+    print(f"wrote {out}")
 
 
 if __name__ == "__main__":
