@@ -30,7 +30,7 @@ import scipy.signal
 from jaxflex import datasets, get_effect, identify
 from jaxflex._io import provenance, write_json
 from jaxflex.arm import load_arm
-from jaxflex.measured import fit_channels, model_record, validate
+from jaxflex.measured import model_record, validate
 from jaxflex.metrics import nrmse
 
 ROOT = Path(__file__).resolve().parent
@@ -41,29 +41,28 @@ CHANNELS = ("joint_angle", "deflection_angle")
 
 def clamped_frequencies(arm, params) -> list[float]:
     """The first bending frequencies (Hz) with the hub held still."""
-    structure = arm.model().structure({k: np.float64(v) for k, v in params.items()})
+    structure = arm.structure({k: np.float64(v) for k, v in params.items()})
     mass, stiffness = np.asarray(structure.mass)[1:, 1:], np.asarray(structure.stiffness)[1:, 1:]
     omega2 = scipy.linalg.eigh(stiffness, mass, eigvals_only=True)
     return [float(f) for f in np.sqrt(omega2[:2]) / (2 * np.pi)]
 
 
 def physical(arm, fit_run, held_out, budget: tuple[int, int], seed: int, effects=()) -> dict:
-    """Identify the arm's model (plus ``effects``) on ``fit_run``; score both runs."""
+    """Identify the rig's model (plus ``effects``) on ``fit_run``; score both runs."""
     generations, population = budget
+    model = arm.with_effects(*effects)
     start = time.perf_counter()
     fit = identify(
-        model_record(arm, fit_run),
-        arm.model(*effects),
+        model_record(model, fit_run),
+        model,
         generations=generations,
         population=population,
         seed=seed,
-        fixed=arm.fixed_values,
-        channels=fit_channels(arm, fit_run),
         intervals=False,
     )
     wall = time.perf_counter() - start
     params = {k: float(v) for k, v in fit.params.items()}
-    scores = validate(arm, params, [fit_run, held_out], effects=effects)
+    scores = validate(model, params, [fit_run, held_out])
     return {
         "effects": [e.name for e in effects],
         "settings": {"generations": generations, "population": population, "seed": seed},

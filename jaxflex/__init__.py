@@ -28,7 +28,7 @@ from jaxflex.parallel import configure_host_devices  # noqa: E402
 configure_host_devices()
 
 from jaxflex import datasets  # noqa: E402
-from jaxflex.arm import Arm, ArmError, load_arm  # noqa: E402
+from jaxflex.arm import ArmError, arm_to_toml, load_arm  # noqa: E402
 from jaxflex.comparison import Comparison, compare, fit_and_validate, noise_floor  # noqa: E402
 from jaxflex.data import Dataset, Record, load_dataset, load_record, save_record  # noqa: E402
 from jaxflex.design import DesignResult, design_input, predicted_intervals  # noqa: E402
@@ -65,7 +65,6 @@ __all__ = [
     "BASE_PARAMETERS",
     "DRIVES",
     "EFFECTS",
-    "Arm",
     "ArmError",
     "Comparison",
     "CurrentDrive",
@@ -86,6 +85,7 @@ __all__ = [
     "TorqueDrive",
     "VoltageDrive",
     "add_effect",
+    "arm_to_toml",
     "base_space",
     "compare",
     "datasets",

@@ -35,10 +35,19 @@ An arm file is TOML (read with the standard library's :mod:`tomllib`)::
     channel = "deflection_angle"
     gain = { reference = 1.0, lower = 0.5, upper = 2.0 }   # identified (a number: fixed)
 
-A sensor's ``gain`` given as a table of ``reference``, ``lower`` and ``upper`` is identified: the
-records are read with the reference gain and the arm's model holds a ``sensor_gain`` effect on
-the output the sensor is fitted as (:mod:`jaxflex.effects.sensor_gain`). An ``offset`` is always
-fixed: records are re-zeroed at rest (:mod:`jaxflex.measured`), which removes any constant.
+    [[effects]]               # optional: effects added to the base model, by name, with
+    name = "payload"          # their settings (or effects = ["payload", ...])
+
+An arm file describes one :class:`~jaxflex.model.Model`, the one rig description every command
+uses: :func:`load_arm` reads it (a path, or a packaged rig's name), :func:`arm_to_dict` and
+:func:`arm_to_toml` write a model back, exactly (a fit file stores the same content). A rig
+without ``[[sensors]]`` is fitted on the simulator's outputs, named as record columns
+(``joint_angle``, ``tip_acceleration``, ...): the reference testbed's format.
+
+A sensor's ``gain`` given as a table of ``reference``, ``lower`` and ``upper`` is identified:
+the model holds a ``sensor_gain`` effect on the sensor's channel
+(:mod:`jaxflex.effects.sensor_gain`). An ``offset`` is always fixed: records are re-zeroed at
+rest (:mod:`jaxflex.measured`), which removes any constant.
 
 Any error (unknown key, missing value, wrong type, bounds that exclude the reference value) is
 an :class:`ArmError` whose one-line message names the file and the key.
@@ -52,14 +61,13 @@ import math
 import os
 import tomllib
 from collections.abc import Mapping
-from dataclasses import dataclass, field
 from typing import Any
 
-from jaxflex.drives import DRIVES, Drive, TorqueDrive
-from jaxflex.effects import Effect, SensorGain, get_effect
+from jaxflex.drives import DRIVES, Drive
+from jaxflex.effects import ChannelEffect, Effect, SensorGain, get_effect
 from jaxflex.model import Model
-from jaxflex.parameters import BASE_PARAMETERS, ParameterSpace, ParameterSpec, Params
-from jaxflex.sensors import SENSORS, Sensor, stations
+from jaxflex.parameters import BASE_PARAMETERS, ParameterSpec
+from jaxflex.sensors import SENSORS, Sensor
 from jaxflex.testbed import Testbed
 
 _BASE = {spec.name: spec for spec in BASE_PARAMETERS}
@@ -69,122 +77,8 @@ class ArmError(ValueError):
     """An arm file or arm description is wrong; the message names the file and the key."""
 
 
-@dataclass(frozen=True)
-class Arm:
-    """One rig: link and settings (a :class:`Testbed`), base-parameter specs, drive, sensors.
-
-    ``fixed`` names base parameters held at their reference value when identifying;
-    ``identified_gains`` holds ``(channel, lower, upper)`` for each sensor whose gain is
-    identified (its ``gain`` the reference); ``n_modes`` advances only that many of the lowest
-    modes (:class:`~jaxflex.model.Model`). The defaults are exactly the reference testbed, so
-    ``Arm().model()`` is ``Model()``.
-    """
-
-    testbed: Testbed = field(default_factory=Testbed)
-    parameters: tuple[ParameterSpec, ...] = BASE_PARAMETERS
-    fixed: tuple[str, ...] = ()
-    drive: Drive = field(default_factory=TorqueDrive)
-    sensors: tuple[Sensor, ...] = ()
-    effects: tuple[str, ...] = ()
-    identified_gains: tuple[tuple[str, float, float], ...] = ()
-    n_substeps: int = 2
-    n_modes: int | None = None
-    name: str = "arm"
-    description: str = ""
-    source: str | None = None
-
-    def __post_init__(self) -> None:
-        names = [p.name for p in self.parameters]
-        if names != list(_BASE):
-            raise ArmError(f"arm {self.name!r}: parameters must be {list(_BASE)}, got {names}")
-        unknown = sorted(set(self.fixed) - set(names))
-        if unknown:
-            raise ArmError(f"arm {self.name!r}: fixed parameter(s) {unknown} are not parameters")
-        channels = [s.channel for s in self.sensors]
-        if len(set(channels)) != len(channels):
-            raise ArmError(f"arm {self.name!r}: two sensors log the same channel: {channels}")
-        for s in self.sensors:
-            if s.position is not None and s.position > self.testbed.length:
-                raise ArmError(
-                    f"arm {self.name!r}: sensor {s.channel} at x = {s.position!r} m lies beyond "
-                    f"the link (length {self.testbed.length!r} m)"
-                )
-        for channel, lower, upper in self.identified_gains:
-            if channel not in channels:
-                raise ArmError(f"arm {self.name!r}: identified gain of {channel!r}, a channel "
-                               f"no sensor logs; channels: {channels}")
-            self.calibration(channel, lower, upper)  # checks it
-        for spec in self.parameters:
-            if not spec.lower <= spec.reference <= spec.upper:
-                raise ArmError(
-                    f"arm {self.name!r}: parameter {spec.name}: bounds [{spec.lower!r}, "
-                    f"{spec.upper!r}] exclude the reference value {spec.reference!r}"
-                )
-
-    def calibration(self, channel: str, lower: float, upper: float) -> SensorGain:
-        """The ``sensor_gain`` effect that identifies the gain of the sensor logging ``channel``
-        within ``[lower, upper]``, on the output the sensor is fitted as."""
-        sensor = self.sensor(channel)
-        mapping = sensor.simulated_output(Model(self.testbed))
-        if mapping is None:
-            raise ArmError(
-                f"arm {self.name!r}: sensor {channel} ({sensor.kind} at x = {sensor.position!r} "
-                "m) has no standard output, so its gain cannot be identified"
-            )
-        try:
-            return SensorGain(channel=mapping[0], reference=sensor.gain, lower=lower, upper=upper)
-        except ValueError as err:
-            raise ArmError(f"arm {self.name!r}: sensor {channel}: {err}") from None
-
-    def model(self, *effects: Effect) -> Model:
-        """The :class:`Model` of this arm (a station at each link sensor), with its own effects,
-        its identified sensor gains and any ``effects`` given (an own effect that ``effects``
-        names again is taken once, as given there: a fit's model holds the arm's own)."""
-        own = tuple(get_effect(name) for name in self.effects) + tuple(
-            self.calibration(*gain) for gain in self.identified_gains
-        )
-        given = {e.name for e in effects}
-        return Model(
-            self.testbed,
-            tuple(e for e in own if e.name not in given) + effects,
-            self.n_substeps,
-            self.parameters,
-            self.drive,
-            stations(self.sensors),
-            self.n_modes,
-        )
-
-    def sensor(self, channel: str) -> Sensor:
-        """The sensor that logs ``channel``."""
-        for s in self.sensors:
-            if s.channel == channel:
-                return s
-        raise KeyError(
-            f"arm {self.name!r} has no sensor logging {channel!r}; channels: "
-            f"{[s.channel for s in self.sensors]}"
-        )
-
-    @property
-    def space(self) -> ParameterSpace:
-        """The base parameters with this arm's bounds and reference values."""
-        return ParameterSpace(self.parameters)
-
-    def reference_parameters(self) -> Params:
-        """The arm's reference values of the base parameters."""
-        return self.space.reference()
-
-    @property
-    def fixed_values(self) -> dict[str, float]:
-        """Fixed parameters and their values, as ``identify(..., fixed=...)`` takes them."""
-        return {s.name: s.reference for s in self.parameters if s.name in self.fixed}
-
-    def replace(self, **changes: Any) -> Arm:
-        """A copy with some fields changed (validated)."""
-        return dataclasses.replace(self, **changes)
-
-
-def load_arm(path: str | os.PathLike) -> Arm:
-    """Read and check an arm file (see the module doc)."""
+def load_arm(path: str | os.PathLike) -> Model:
+    """Read and check an arm file (see the module doc): the rig it describes."""
     where = os.fspath(path)
     try:
         with open(path, "rb") as f:
@@ -196,8 +90,9 @@ def load_arm(path: str | os.PathLike) -> Arm:
     return arm_from_dict(data, where)
 
 
-def arm_from_dict(data: Mapping[str, Any], where: str = "arm") -> Arm:
-    """An :class:`Arm` from the parsed content of an arm file; ``where`` names it in errors."""
+def arm_from_dict(data: Mapping[str, Any], where: str = "arm") -> Model:
+    """The :class:`~jaxflex.model.Model` an arm file's parsed content describes; ``where``
+    names it in errors."""
     top = _Table(data, where, "")
     link = top.table("link")
     length = link.number("length")
@@ -230,28 +125,125 @@ def arm_from_dict(data: Mapping[str, Any], where: str = "arm") -> Arm:
     specs, fixed = _parameters(top.table("parameters"))
     drive = _drive(top.table("drive"))
     sensors, gains = _sensors(top, length)
-    effects = top.strings("effects", ())
-    for i, name in enumerate(effects):
-        try:
-            get_effect(name)
-        except ValueError as err:
-            raise ArmError(f"{where}: effects[{i}]: {err}") from None
-    arm = Arm(
-        testbed=testbed,
-        parameters=specs,
-        fixed=fixed,
-        drive=drive,
-        sensors=sensors,
-        effects=effects,
-        identified_gains=gains,
-        n_substeps=n_substeps,
-        n_modes=n_modes,
-        name=top.string("name"),
-        description=top.string("description", ""),
-        source=where,
+    effects = _effects(top) + tuple(
+        _gain_effect(top.where, channel, bounds) for channel, bounds in gains
     )
+    name = top.string("name")
+    description = top.string("description", "")
     top.done()
-    return arm
+    try:
+        return Model(testbed, effects, n_substeps, base=specs, drive=drive, n_modes=n_modes,
+                     sensors=sensors, fixed=fixed, name=name, description=description)
+    except (TypeError, ValueError) as err:
+        raise ArmError(f"{where}: {err}") from None
+
+
+def _effects(top: _Table) -> tuple[Effect, ...]:
+    """``effects``: names, or tables of ``name`` and the effect's settings."""
+    entries = top._get("effects", [])
+    if not isinstance(entries, list):
+        raise top._wrong("effects", "a list of effect names or tables ([[effects]])", entries)
+    effects = []
+    for i, entry in enumerate(entries):
+        at = f"{top.where}: effects[{i}]"
+        if isinstance(entry, str):
+            settings: dict[str, Any] = {"name": entry}
+        elif isinstance(entry, Mapping):
+            settings = dict(entry)
+        else:
+            raise ArmError(f"{at}: expected an effect name or table, got {_kind(entry)}")
+        name = settings.pop("name", None)
+        if not isinstance(name, str):
+            raise ArmError(f"{at}.name: expected the effect's name (a string), got {name!r}")
+        try:
+            effects.append(get_effect(name, **settings))
+        except TypeError as err:
+            raise ArmError(f"{at}: {name}: {err}") from None
+        except ValueError as err:
+            raise ArmError(f"{at}: {err}") from None
+    return tuple(effects)
+
+
+def _gain_effect(where: str, channel: str, bounds: tuple[float, float, float]) -> SensorGain:
+    """The ``sensor_gain`` effect that identifies a sensor's gain within its bounds."""
+    reference, lower, upper = bounds
+    try:
+        return SensorGain(channel=channel, reference=reference, lower=lower, upper=upper)
+    except ValueError as err:
+        raise ArmError(f"{where}: sensor {channel}: {err}") from None
+
+
+def arm_to_dict(model: Model) -> dict[str, Any]:
+    """The arm-file content of ``model``, TOML- and JSON-able: :func:`arm_from_dict` gives the
+    same model back, field for field (a fit file stores it so)."""
+    tb = model.testbed
+    fixed = set(model.fixed)
+    data: dict[str, Any] = {"name": model.name}
+    if model.description:
+        data["description"] = model.description
+    data["link"] = {"length": tb.length, "width": tb.width, "thickness": tb.thickness,
+                    "density": tb.density, "clamp_offset": tb.clamp_offset}
+    data["simulation"] = {"n_elements": tb.n_elements, "n_substeps": model.n_substeps,
+                          "friction_smoothing": tb.omega_s}
+    if model.n_modes is not None:
+        data["simulation"]["n_modes"] = model.n_modes
+    data["sampling"] = {"dt": tb.dt, "duration": tb.duration}
+    data["parameters"] = {
+        spec.name: {"reference": spec.reference, "lower": spec.lower, "upper": spec.upper}
+        | ({"log_scale": spec.log_scale} if spec.log_scale != _BASE[spec.name].log_scale else {})
+        | ({"fixed": True} if spec.name in fixed else {})
+        for spec in model.base
+    }
+    data["drive"] = {"type": model.drive.name} | model.drive.settings()
+    if model.sensors:
+        data["sensors"] = [_sensor_dict(sensor) for sensor in model.sensors]
+    if model.effects:
+        data["effects"] = [_effect_dict(effect) for effect in model.effects]
+    return data
+
+
+def _sensor_dict(sensor: Sensor) -> dict[str, Any]:
+    return {"type": sensor.kind} | {
+        f.name: getattr(sensor, f.name) for f in dataclasses.fields(sensor)
+    }
+
+
+def _effect_dict(effect: Effect) -> dict[str, Any]:
+    own = ("channel",) if isinstance(effect, ChannelEffect) else ()
+    return {"name": effect.name} | {
+        f.name: getattr(effect, f.name) for f in dataclasses.fields(effect) if f.name not in own
+    }
+
+
+def arm_to_toml(model: Model) -> str:
+    """``model`` as an arm file (TOML): :func:`load_arm` reads the same model back."""
+    data = arm_to_dict(model)
+    lines = [f"{key} = {_toml_value(data[key])}" for key in ("name", "description") if key in data]
+    for table in ("link", "simulation", "sampling", "parameters", "drive"):
+        lines += ["", f"[{table}]"]
+        lines += [f"{k} = {_toml_value(v)}" for k, v in data[table].items()]
+    for array in ("sensors", "effects"):
+        for entry in data.get(array, []):
+            lines += ["", f"[[{array}]]"]
+            lines += [f"{k} = {_toml_value(v)}" for k, v in entry.items()]
+    return "\n".join(lines) + "\n"
+
+
+def _toml_value(value: Any) -> str:
+    """One TOML value: strings, booleans, numbers (floats exactly, by ``repr``), inline tables."""
+    if isinstance(value, bool):
+        return "true" if value else "false"
+    if isinstance(value, int):
+        return str(value)
+    if isinstance(value, float):
+        if not math.isfinite(value):
+            raise ArmError(f"a rig value {value!r} is not finite: it has no arm-file form")
+        return repr(value)
+    if isinstance(value, str):
+        return '"' + value.replace("\\", "\\\\").replace('"', '\\"') + '"'
+    if isinstance(value, Mapping):
+        return "{ " + ", ".join(f"{k} = {_toml_value(v)}" for k, v in value.items()) + " }"
+    raise ArmError(f"a rig value {value!r} ({type(value).__name__}) has no arm-file form")
 
 
 def _density(link: _Table, length: float, area: float) -> float:
@@ -330,9 +322,9 @@ def _drive(table: _Table) -> Drive:
 
 def _sensors(
     top: _Table, length: float
-) -> tuple[tuple[Sensor, ...], tuple[tuple[str, float, float], ...]]:
+) -> tuple[tuple[Sensor, ...], tuple[tuple[str, tuple[float, float, float]], ...]]:
     """The ``[[sensors]]`` tables: ``type`` picks the class, the other keys are its fields; and
-    ``(channel, lower, upper)`` of each gain given as a table (identified)."""
+    ``(channel, (reference, lower, upper))`` of each gain given as a table (identified)."""
     entries = top._get("sensors", [])
     if not isinstance(entries, list):
         raise top._wrong("sensors", "an array of tables ([[sensors]])", entries)
@@ -349,7 +341,8 @@ def _sensors(
         bounds = None
         if isinstance(table.data.get("gain"), Mapping):
             gain = table.table("gain")
-            values["gain"], *bounds = _bounded(gain, signed=True)
+            bounds = _bounded(gain, signed=True)
+            values["gain"] = bounds[0]
             gain.done()
         if isinstance(table.data.get("offset"), Mapping):
             raise ArmError(
@@ -382,7 +375,7 @@ def _sensors(
         except ValueError as err:
             raise ArmError(f"{table.where}: sensors[{i}]: {err}") from None
         if bounds is not None:
-            gains.append((sensors[-1].channel, *bounds))
+            gains.append((sensors[-1].channel, bounds))
     return tuple(sensors), tuple(gains)
 
 
@@ -475,9 +468,4 @@ def _kind(value: Any) -> str:
     )
 
 
-def reference_arm() -> Arm:
-    """The reference testbed as an :class:`Arm` (what ``arms/reference.toml`` describes)."""
-    return Arm(name="reference")
-
-
-__all__ = ["Arm", "ArmError", "arm_from_dict", "load_arm", "reference_arm"]
+__all__ = ["ArmError", "arm_from_dict", "arm_to_dict", "arm_to_toml", "load_arm"]

@@ -33,11 +33,12 @@ import numpy as np
 from jaxtyping import ArrayLike, Bool, Complex, Float
 
 from jaxflex._io import provenance, to_jsonable
-from jaxflex.data import OUTPUT_COLUMNS, Dataset, Record
+from jaxflex.data import KNOWN_UNITS, OUTPUT_COLUMNS, Dataset, Record
 from jaxflex.diagnosis.frf import LINK_OUTPUTS
 from jaxflex.metrics import frf_nrmse, h1_frf, nrmse, relative_error, spectral_window
 from jaxflex.modal import free_hub_modes
 from jaxflex.model import Model
+from jaxflex.objective import check_channels, check_inputs, fitted_channels
 from jaxflex.sensors import calibrated
 from jaxflex.simulation import Outputs, simulate
 
@@ -155,7 +156,7 @@ class Comparison:
     simulated outputs, and the model's resonances. Index it by record name or position."""
 
     rows: tuple[RecordComparison, ...]
-    records: Dataset
+    records: Dataset | tuple[Record, ...]
     simulated: tuple[Outputs, ...]
     params: dict[str, float]
     effects: tuple[str, ...]
@@ -163,6 +164,10 @@ class Comparison:
     t_end: float | None
     frf_settings: FRFSettings
     noise: dict[str, float] = field(default_factory=dict)  # encoder_counts, accel_sigma if known
+    channels: tuple[str, ...] = OUTPUT_COLUMNS  # the channels compared, in their units below
+    units: dict[str, str] = field(default_factory=dict)
+    link: str = "tip_acceleration"  # the FRF's output
+    input_name: str = "torque"
 
     def __len__(self) -> int:
         return len(self.rows)
@@ -186,12 +191,11 @@ class Comparison:
         """The model's prediction of one record, as a record (measured torque, simulated
         outputs; the other simulated signals as extra columns)."""
         i = self._index(key)
-        out = self.simulated[i]
-        extras = {n: np.asarray(out.channel(n)) for n in _EXTRA_OUTPUTS}
-        return self.records[i].replace(
-            joint_angle=np.asarray(out.joint_angle),
-            tip_acceleration=np.asarray(out.tip_acceleration),
-            extras=extras,
+        out, record = self.simulated[i], self.records[i]
+        columns = {"time": record.time, record.input_name: record.input}
+        columns |= {n: np.asarray(out.channel(n)) for n in (*OUTPUT_COLUMNS, *_EXTRA_OUTPUTS)}
+        columns |= {c: np.asarray(out.channel(c)) for c in self.channels}
+        return record.with_columns(columns, note="simulated").replace(
             name=f"{self.rows[i].name}_model",
             metadata={"model": "jaxflex", "effects": ", ".join(self.effects) or "none"},
             source=None,
@@ -205,7 +209,7 @@ class Comparison:
         rows = [r for r in self.rows if role is None or r.role == role]
         return {
             o: float(np.mean([getattr(r, metric)[o] for r in rows])) if rows else math.nan
-            for o in OUTPUT_COLUMNS
+            for o in self.channels
         }
 
     def table(self) -> str:
@@ -222,6 +226,7 @@ class Comparison:
                 "params": dict(self.params),
                 "effects": list(self.effects),
                 "model_resonances_hz": list(self.resonances_hz),
+                "channels": {c: self.units.get(c, "") for c in self.channels},
                 "settings": {
                     "t_end_s": self.t_end,
                     "frf": {
@@ -271,8 +276,13 @@ def compare(
     frf: FRFSettings | None = None,
     encoder_counts: int | None = None,
     accel_sigma: float | None = None,
+    channels: Sequence[str] | None = None,
 ) -> Comparison:
-    """Simulate ``model`` at ``params`` under each record's torque and compute every metric.
+    """Simulate ``model`` at ``params`` under each record's input and compute every metric.
+
+    ``channels`` are the outputs or sensor channels compared (default: those the model fits,
+    :func:`jaxflex.objective.fitted_channels`), each in its own unit; the FRF runs from the
+    input to the first channel on the link.
 
     Records named in ``fit_names`` get the role 'fit', the others 'held-out'. ``t_end`` bounds
     the time-domain window (``None``: the whole record). ``frf`` sets the FRF estimate and the
@@ -284,28 +294,38 @@ def compare(
     dataset = _as_dataset(records)
     if not len(dataset):
         raise ValueError("compare needs at least one record")
+    names = [r.name for r in dataset]
+    twice = sorted({n for n in names if names.count(n) > 1})
+    if twice:
+        raise ValueError(f"record name(s) {twice} appear twice; records need distinct names")
     fit_names = {fit_names} if isinstance(fit_names, str) else set(fit_names)
-    unknown = sorted(fit_names - set(dataset.names))
+    unknown = sorted(fit_names - set(names))
     if unknown:
         raise ValueError(
-            f"fit_names {unknown} are not records of the comparison; records: {list(dataset.names)}"
+            f"fit_names {unknown} are not records of the comparison; records: {names}"
         )
     if t_end is not None and not (math.isfinite(t_end) and t_end > 0):
         raise ValueError(f"t_end={t_end!r} must be a positive time in seconds (or None)")
     settings = FRFSettings() if frf is None else frf
     model.space.validate(params)
     values = {k: float(np.asarray(v)) for k, v in params.items()}
+    check_inputs(dataset, model)
+    channels = fitted_channels(dataset, model) if channels is None else check_channels(
+        channels, model)
+    for c in channels:
+        for record in dataset:
+            record.channel(c)  # a KeyError naming the record, the channel and its columns
+    link = link_channel(model, channels)
 
     rows, simulated = [], []
     for record in dataset:
-        out = calibrated(model, values, simulate(model, values, record.torque, dt=record.dt))
+        out = calibrated(model, values, simulate(model, values, record.input, dt=record.dt))
         role = "fit" if record.name in fit_names else "held-out"
-        rows.append(
-            compare_record(record, out, role, t_end, settings, encoder_counts, accel_sigma)
-        )
+        rows.append(compare_record(record, out, role, t_end, settings, encoder_counts,
+                                   accel_sigma, channels, link))
         simulated.append(out)
 
-    nyquist = 0.5 / dataset.dt
+    nyquist = 0.5 / max(r.dt for r in dataset)
     freqs = np.asarray(free_hub_modes(model.structure(values)).frequencies_hz)
     noise = {
         k: v
@@ -322,7 +342,24 @@ def compare(
         t_end=t_end,
         frf_settings=settings,
         noise=noise,
+        channels=tuple(channels),
+        units=channel_units(model, channels),
+        link=link,
+        input_name=dataset[0].input_name,
     )
+
+
+def link_channel(model: Model, channels: Sequence[str]) -> str:
+    """The channel the FRF compares: the first link sensor's, or the first link output
+    (:data:`~jaxflex.diagnosis.frf.LINK_OUTPUTS`), else the first channel."""
+    on_link = [s.channel for s in model.sensors if s.position is not None]
+    return next((c for c in channels if c in on_link or c in LINK_OUTPUTS), channels[0])
+
+
+def channel_units(model: Model, channels: Sequence[str]) -> dict[str, str]:
+    """Each channel's unit: its sensor's, or the simulator output's."""
+    own = {s.channel: s.unit for s in model.sensors}
+    return {c: own.get(c, KNOWN_UNITS.get(c, "")) for c in channels}
 
 
 def fit_and_validate(
@@ -344,7 +381,7 @@ def fit_and_validate(
     """
     from jaxflex.identification import identify
 
-    dataset = _as_dataset(records)
+    dataset = records if isinstance(records, Dataset) else Dataset(list(records))
     fit_set, rest = dataset.split(fit_names)
     if not len(fit_set):
         raise ValueError("fit_names must name at least one record")
@@ -393,11 +430,15 @@ def noise_floor(
         ):
             raise ValueError(f"encoder_counts={encoder_counts!r} must be a positive integer")
         step = 2.0 * math.pi / encoder_counts
-        floor["joint_angle"] = _percent_of_rms(step / math.sqrt(12.0), record.joint_angle[window])
+        if record.joint_angle is not None:
+            floor["joint_angle"] = _percent_of_rms(step / math.sqrt(12.0),
+                                                   record.joint_angle[window])
     if accel_sigma is not None:
         if not (math.isfinite(accel_sigma) and accel_sigma >= 0):
             raise ValueError(f"accel_sigma={accel_sigma!r} must be >= 0 m/s^2")
-        floor["tip_acceleration"] = _percent_of_rms(accel_sigma, record.tip_acceleration[window])
+        if record.tip_acceleration is not None:
+            floor["tip_acceleration"] = _percent_of_rms(accel_sigma,
+                                                        record.tip_acceleration[window])
     return floor
 
 
@@ -413,6 +454,7 @@ def compare_record(
     encoder_counts: int | None,
     accel_sigma: float | None,
     outputs: Sequence[str] = OUTPUT_COLUMNS,
+    link: str | None = None,
 ) -> RecordComparison:
     """The model's outputs ``out`` against one record in the role ``role`` (``"fit"`` or
     ``"held-out"``): NRMSE and relative error per output (``outputs``, the ones the record
@@ -435,7 +477,8 @@ def compare_record(
         errors[name] = nrmse(measured, simulated)
         relative[name] = relative_error(measured, simulated)
 
-    link = next((c for c in LINK_OUTPUTS if c in outputs), outputs[0])
+    if link is None:
+        link = next((c for c in LINK_OUTPUTS if c in outputs), outputs[0])
     frf = _frf(record, np.asarray(out.channel(link)), settings, link)
     band = frf.band
     floor = noise_floor(record, encoder_counts, accel_sigma, t_end=t_end)
@@ -462,12 +505,12 @@ def _frf(record: Record, simulated: np.ndarray, settings: FRFSettings,
     """H1 FRFs torque → ``output``, measured and simulated, and the bins to compare."""
     kw = {"nperseg": settings.nperseg, "window": settings.window}
     fs = record.sample_rate
-    freqs, measured, coherence = h1_frf(record.torque, record.channel(output), fs, **kw)
-    _, model, _ = h1_frf(record.torque, simulated, fs, **kw)
+    freqs, measured, coherence = h1_frf(record.input, record.channel(output), fs, **kw)
+    _, model, _ = h1_frf(record.input, simulated, fs, **kw)
     band = (freqs > 0) & (freqs <= settings.f_max)
     compared = band & np.isfinite(measured) & np.isfinite(model)
     if settings.single_segment and settings.min_input_db is not None:
-        power = _input_power(record.torque, settings.window)
+        power = _input_power(record.input, settings.window)
         peak = power[compared].max() if compared.any() else 0.0
         compared &= power >= peak * 10.0 ** (settings.min_input_db / 10.0)
     if not settings.single_segment and settings.min_coherence is not None:
@@ -490,7 +533,7 @@ def _frf_noise_floor(record: Record, frf: FRF, settings: FRFSettings, accel_sigm
     order it changes ``|H|`` by the component along ``H``, of variance ``σ² Σ w² / (2|X_k|²)``.
     """
     taper = spectral_window(settings.window or "boxcar", record.n_samples)
-    power = _input_power(record.torque, settings.window)[frf.compared]
+    power = _input_power(record.input, settings.window)[frf.compared]
     spread = accel_sigma**2 * np.sum(taper**2) / (2.0 * power)
     return _percent_of_rms(math.sqrt(float(np.mean(spread))), np.abs(frf.measured[frf.compared]))
 
@@ -520,12 +563,13 @@ def _peaks(freqs: np.ndarray, magnitude: np.ndarray, valid: np.ndarray) -> tuple
 # --- helpers ------------------------------------------------------------------------------------
 
 
-def _as_dataset(records: Record | Iterable[Record]) -> Dataset:
+def _as_dataset(records: Record | Iterable[Record]) -> Dataset | tuple[Record, ...]:
+    """A data set as it is; other records as a tuple (they may differ in sampling rate)."""
     if isinstance(records, Dataset):
         return records
     if isinstance(records, Record):
-        return Dataset([records])
-    return Dataset(records)
+        return (records,)
+    return tuple(records)
 
 
 def _time_window(record: Record, t_end: float | None) -> np.ndarray:
@@ -545,20 +589,21 @@ def _percent_of_rms(noise_rms: float, measured: np.ndarray) -> float:
 def _format_table(c: Comparison) -> str:
     show_floor = any(r.noise_floor for r in c.rows)
     header = ["record", "role"]
-    header += [f"NRMSE {_SHORT[o]} %" for o in OUTPUT_COLUMNS]
+    short = {o: _SHORT.get(o, o) for o in c.channels}
+    header += [f"NRMSE {short[o]} %" for o in c.channels]
     header += ["FRF NRMSE %", "FRF raw %", "bins"]
-    header += [f"rel.err {_SHORT[o]}" for o in OUTPUT_COLUMNS]
+    header += [f"rel.err {short[o]}" for o in c.channels]
     if show_floor:
-        header += [f"floor {_SHORT[o]} %" for o in OUTPUT_COLUMNS] + ["floor FRF %"]
+        header += [f"floor {short[o]} %" for o in c.channels] + ["floor FRF %"]
     lines = []
     for r in c.rows:
         cells = [r.name, r.role]
-        cells += [_number(r.nrmse[o]) for o in OUTPUT_COLUMNS]
+        cells += [_number(r.nrmse[o]) for o in c.channels]
         cells += [_number(r.frf_nrmse), _number(r.frf_nrmse_raw)]
         cells.append(f"{r.frf_bins[0]}/{r.frf_bins[1]}")
-        cells += [_scientific(r.relative_error[o]) for o in OUTPUT_COLUMNS]
+        cells += [_scientific(r.relative_error[o]) for o in c.channels]
         if show_floor:
-            keys = (*OUTPUT_COLUMNS, "frf")
+            keys = (*c.channels, "frf")
             cells += [_number(r.noise_floor[k]) if k in r.noise_floor else "-" for k in keys]
         lines.append(cells)
     widths = [max(len(h), *(len(row[j]) for row in lines)) for j, h in enumerate(header)]
@@ -572,7 +617,8 @@ def _format_table(c: Comparison) -> str:
     window = "the whole record" if c.t_end is None else f"0 <= t <= {c.t_end:g} s"
     notes = [
         f"NRMSE = 100 rms(y - y_model)/rms(y) and rel.err = |y - y_model|/|y|, over {window}.",
-        f"FRF: H1 estimate torque -> tip acceleration; FRF NRMSE = {c.frf_settings.describe()} "
+        f"FRF: H1 estimate {c.input_name} -> {c.link.replace('_', ' ')}; FRF NRMSE = "
+        f"{c.frf_settings.describe()} "
         "('bins': compared/in band); FRF raw = every bin of the band.",
     ]
     if show_floor:

@@ -162,6 +162,11 @@ class Record:
         return next(c for c in INPUT_COLUMNS if c in self.columns)
 
     @property
+    def input(self) -> np.ndarray:
+        """The input signal, in its own unit (the column :attr:`input_name` names)."""
+        return self.channel(self.input_name)
+
+    @property
     def units(self) -> dict[str, str]:
         """Unit of every column ('' for an extra column whose unit jaxflex does not know)."""
         return {c: KNOWN_UNITS.get(c, "") for c in self.columns}

@@ -33,13 +33,15 @@ from jaxflex._io import provenance, to_jsonable, write_json
 from jaxflex.diagnosis import Noise, noise_levels
 from jaxflex.evolve import STRATEGIES, get_strategy, run
 from jaxflex.model import Model
-from jaxflex.objective import DEFAULT_CHANNELS, Objective, Records, build_objective
+from jaxflex.objective import Objective, Records, build_objective
 from jaxflex.refine import Refinement, uncertainty
 from jaxflex.refine import refine as refine_parameters
 from jaxflex.testbed import Testbed
 
-FIT_FORMAT = "jaxflex-fit/1"
-"""Format tag written into, and required of, fit files; bumped when their layout changes."""
+FIT_FORMAT = "jaxflex-fit/2"
+"""Format tag written into fit files; bumped when their layout changes. Version 2 stores the
+whole rig (:func:`describe_model`); version 1, which stored its testbed and effects, is read."""
+_FORMATS = ("jaxflex-fit/1", FIT_FORMAT)
 METHODS: tuple[str, ...] = tuple(sorted(STRATEGIES))
 """The evolutionary methods an identification can use, by name."""
 
@@ -48,21 +50,21 @@ METHODS: tuple[str, ...] = tuple(sorted(STRATEGIES))
 
 
 def describe_model(model: Model) -> dict[str, Any]:
-    """A JSON-able description of ``model`` (testbed settings, effects with their settings)."""
-    return {
-        "testbed": {f.name: getattr(model.testbed, f.name) for f in fields(model.testbed)},
-        "effects": [
-            {"name": e.name, "settings": {f.name: getattr(e, f.name) for f in fields(e)}}
-            for e in model.effects
-        ],
-        "n_substeps": model.n_substeps,
-    } | ({} if model.n_modes is None else {"n_modes": model.n_modes})
+    """The rig's full content, JSON-able: its arm-file form (:func:`jaxflex.arm.arm_to_dict`),
+    from which :func:`build_model` gives the same model back."""
+    from jaxflex.arm import arm_to_dict
+
+    return arm_to_dict(model)
 
 
 def build_model(description: Mapping[str, Any]) -> Model:
-    """The :class:`Model` a :func:`describe_model` description stands for."""
+    """The :class:`Model` a :func:`describe_model` description stands for (also the testbed
+    and effects that fit files of format ``jaxflex-fit/1`` recorded)."""
+    from jaxflex.arm import arm_from_dict
     from jaxflex.effects import get_effect
 
+    if "link" in description:
+        return arm_from_dict(description, "the fit's rig")
     try:
         testbed = Testbed(**description["testbed"])
         effects = tuple(
@@ -108,7 +110,9 @@ class Fit:
     ``names`` are the identified ones, and ``intervals``/``std``/``covariance``/``correlation``
     refer to them (in that order for the matrices). ``cost`` is the final objective (weighted
     mean squared NRMSE, a fraction; see :mod:`jaxflex.objective`), ``cost_search`` the best the
-    evolutionary search found. ``model()`` rebuilds the :class:`Model`.
+    evolutionary search found. ``model_description`` is the whole rig (drive, sensors, specs,
+    effects), so ``model()`` rebuilds the :class:`Model` exactly, whatever became of its arm
+    file.
     """
 
     params: dict[str, float]
@@ -137,7 +141,7 @@ class Fit:
 
     # --- use -------------------------------------------------------------------------------
     def model(self) -> Model:
-        """The model this fit belongs to (testbed settings and effects)."""
+        """The rig this fit belongs to, whole."""
         return build_model(self.model_description)
 
     @property
@@ -366,19 +370,30 @@ def _show(v: Any) -> str:
 _STRINGS = _list_of(_typed(str, "a string"))
 _NUMBERS = _list_of(_number_field())
 _PARAMS = _object_of(_number_field(nullable=False, finite=True))
+def _rig(v: Any, at: str) -> None:
+    """The fit's rig: a legacy description (testbed, effects) or an arm-file form."""
+    if isinstance(v, dict) and "link" in v:
+        from jaxflex.arm import arm_from_dict
+
+        arm_from_dict(v, f"field {at!r}")
+    else:
+        _LEGACY_MODEL(v, at)
+
+
+_LEGACY_MODEL = _record({
+    "testbed": _record({"n_elements": _n_elements}, optional=("n_elements",)),
+    "effects": _list_of(_record({"name": _typed(str, "a string"),
+                                 "settings": _typed(dict, "an object")},
+                                optional=("settings",))),
+    "n_substeps": _typed(int, "a whole number"),
+    "n_modes": _nullable(_typed(int, "a whole number")),
+}, optional=("n_modes",))
 FIT_SCHEMA = _record({
-    "format": _one_of(FIT_FORMAT),
+    "format": _one_of(*_FORMATS),
     "params": _PARAMS,
     "names": _STRINGS,
     "fixed": _PARAMS,
-    "model_description": _record({
-        "testbed": _record({"n_elements": _n_elements}, optional=("n_elements",)),
-        "effects": _list_of(_record({"name": _typed(str, "a string"),
-                                     "settings": _typed(dict, "an object")},
-                                    optional=("settings",))),
-        "n_substeps": _typed(int, "a whole number"),
-        "n_modes": _nullable(_typed(int, "a whole number")),
-    }, optional=("n_modes",)),
+    "model_description": _rig,
     "cost": _number_field(),
     "cost_search": _number_field(),
     "intervals": _object_of(_list_of(_number_field(), length=2)),
@@ -415,7 +430,7 @@ def check_fit(data: Any) -> None:
     names the first wrong field."""
     if not isinstance(data, dict):
         raise ValueError(f"not a jaxflex fit (expected a JSON object, got {_show(data)})")
-    if data.get("format") != FIT_FORMAT:
+    if data.get("format") not in _FORMATS:
         raise ValueError(f"not a jaxflex fit (format {data.get('format')!r}, "
                          f"expected {FIT_FORMAT!r})")
     FIT_SCHEMA(data, "")
@@ -521,7 +536,7 @@ def identify(
     bounds: Mapping[str, tuple[float, float]] | None = None,
     *,
     fixed: Mapping[str, float] | None = None,
-    channels: Sequence[str] = DEFAULT_CHANNELS,
+    channels: Sequence[str] | None = None,
     refine_starts: int = 1,
     strategy_options: Mapping[str, Any] | None = None,
     intervals: bool = True,

@@ -1,4 +1,13 @@
-"""The model: testbed + drive + effects → parameter space and structural matrices."""
+"""The rig: one description of a flexible-link arm that every command, fit and figure uses.
+
+A :class:`Model` holds the link and simulation settings (a :class:`~jaxflex.testbed.Testbed`),
+the base parameters' specs (reference values, bounds) and which of them are fixed, the drive that
+turns the logged input into hub torque, the sensors that log the record's channels, and the
+physical effects added to the base model. It is what an arm file describes
+(:mod:`jaxflex.arm` reads and writes one) and what a fit file stores whole, so a fit
+re-simulates identically whatever became of the file it was made with. ``Model()`` is the
+reference testbed (``jaxflex arms show reference``).
+"""
 
 from __future__ import annotations
 
@@ -14,19 +23,28 @@ from jaxflex.drives import Drive, TorqueDrive
 from jaxflex.effects._base import Effect, Structure, joint_friction
 from jaxflex.fem import BeamPatterns
 from jaxflex.parameters import BASE_PARAMETERS, ParameterSpace, ParameterSpec, Params
+from jaxflex.sensors import Sensor
 from jaxflex.stations import beam_rows
 from jaxflex.testbed import Testbed
 
+REFERENCE_DESCRIPTION = (
+    "reference testbed: 0.5 m aluminium strip, torque drive, joint angle and tip acceleration"
+)
+"""The reference testbed's description (``Model().description``)."""
+
 
 class Model(eqx.Module):
-    """A flexible-link arm: the reference testbed plus any number of physical effects.
+    """A flexible-link rig: link, parameter specs, drive, sensors and physical effects.
 
     ``n_substeps`` integrator steps are taken per sample interval; see :mod:`jaxflex.simulation`.
-    ``base`` holds the specs (bounds, reference values) of the six base parameters, ``drive``
-    turns the logged input into hub torque (:mod:`jaxflex.drives`); a :class:`~jaxflex.arm.Arm`
-    sets both for a real rig. ``n_modes`` advances only that many of the lowest flexible modes
-    and adds the others' quasi-static response (default: all modes; see
-    :mod:`jaxflex.simulation`).
+    ``base`` holds the specs (bounds, reference values) of the six base parameters and ``fixed``
+    names those held at their reference value when identifying; ``drive`` turns the logged input
+    into hub torque (:mod:`jaxflex.drives`). ``sensors`` read the record's channels
+    (:mod:`jaxflex.sensors`): a simulation then also gives each sensor's reading by its channel
+    name, and a station is added at each link sensor. A model without sensors (the reference
+    testbed) is fitted on the simulator's own outputs, named as record columns. ``n_modes``
+    advances only that many of the lowest flexible modes and adds the others' quasi-static
+    response (default: all modes; see :mod:`jaxflex.simulation`).
     """
 
     testbed: Testbed = Testbed()
@@ -36,6 +54,22 @@ class Model(eqx.Module):
     drive: Drive = TorqueDrive()
     stations: tuple[float, ...] = eqx.field(static=True, default=())
     n_modes: int | None = eqx.field(static=True, default=None)
+    sensors: tuple[Sensor, ...] = eqx.field(static=True, default=())
+    fixed: tuple[str, ...] = eqx.field(static=True, default=())
+    name: str = eqx.field(static=True, default="reference")
+    description: str = eqx.field(static=True, default=REFERENCE_DESCRIPTION)
+
+    def __post_init__(self) -> None:
+        if isinstance(self.fixed, str):
+            raise TypeError(f"fixed must be a tuple of parameter names, got {self.fixed!r}")
+        self.effects = tuple(self.effects)
+        self.sensors = tuple(self.sensors)
+        self.fixed = tuple(self.fixed)
+        for sensor in self.sensors:  # checked here: a station needs a position
+            if not isinstance(sensor, Sensor):
+                raise TypeError(f"sensors must be Sensor instances, got {type(sensor).__name__}")
+        positions = {s.position for s in self.sensors if s.position is not None}
+        self.stations = tuple(sorted(set(self.stations) | positions))
 
     def __check_init__(self) -> None:
         if not isinstance(self.n_substeps, int) or self.n_substeps < 1:
@@ -48,6 +82,7 @@ class Model(eqx.Module):
                 f"n_modes must be None or an int from 1 to {flexible} (the flexible modes of "
                 f"{self.testbed.n_elements} elements), got {self.n_modes!r}"
             )
+        self._check_sensors()
         names = [e.name for e in self.effects]
         for effect in self.effects:
             if not isinstance(effect, Effect):
@@ -66,6 +101,60 @@ class Model(eqx.Module):
                 f"base parameters must be {[p.name for p in BASE_PARAMETERS]}, got "
                 f"{list(base_names)}"
             )
+        unknown = sorted(set(self.fixed) - set(base_names))
+        if unknown:
+            raise ValueError(f"fixed parameter(s) {unknown} are not base parameters "
+                             f"{list(base_names)}")
+
+    def _check_sensors(self) -> None:
+        """Distinct channels, none that is the drive's input or time, each effect on a channel
+        acting on an output or a sensor's channel."""
+        from jaxflex.simulation import OUTPUT_NAMES
+
+        channels = [s.channel for s in self.sensors]
+        twice = sorted({c for c in channels if channels.count(c) > 1})
+        if twice:
+            raise ValueError(f"rig {self.name!r}: two sensors log the channel(s) {twice}")
+        for s in self.sensors:
+            if s.position is not None and s.position > self.testbed.length:
+                raise ValueError(
+                    f"rig {self.name!r}: sensor {s.channel} at x = {s.position!r} m lies beyond "
+                    f"the link (length {self.testbed.length!r} m)"
+                )
+        for c in channels:
+            if c == "time" or c == self.drive.name:
+                what = "time" if c == "time" else f"the {self.drive.name} drive's input"
+                raise ValueError(f"rig {self.name!r}: sensor channel {c!r} is {what}, not a "
+                                 "reading; name the sensor's own column")
+        for effect in self.effects:
+            channel = getattr(effect, "channel", None)
+            if channel is not None and channel not in OUTPUT_NAMES and channel not in channels:
+                raise ValueError(
+                    f"rig {self.name!r}: effect {effect.name} acts on {channel!r}, neither a "
+                    f"simulator output nor a sensor's channel ({channels})"
+                )
+
+    @property
+    def channels(self) -> tuple[str, ...]:
+        """The channels the rig's sensors log (empty for a rig fitted on the outputs)."""
+        return tuple(s.channel for s in self.sensors)
+
+    def sensor(self, channel: str) -> Sensor:
+        """The sensor that logs ``channel``."""
+        for s in self.sensors:
+            if s.channel == channel:
+                return s
+        raise KeyError(f"rig {self.name!r} has no sensor logging {channel!r}; channels: "
+                       f"{list(self.channels)}")
+
+    @property
+    def fixed_values(self) -> dict[str, float]:
+        """The fixed base parameters and their reference values."""
+        return {s.name: s.reference for s in self.base if s.name in self.fixed}
+
+    def replace(self, **changes) -> Model:
+        """A copy with some fields changed (checked again)."""
+        return dataclasses.replace(self, **changes)
 
     @property
     def space(self) -> ParameterSpace:

@@ -161,15 +161,59 @@ class Objective(eqx.Module):
         return np.concatenate(records), np.concatenate(channels), np.concatenate(scales)
 
 
-def check_channels(channels: str | Sequence[str]) -> tuple[str, ...]:
-    """``channels`` as a tuple of distinct simulator outputs (one-line error naming the bad one)."""
+def check_channels(
+    channels: str | Sequence[str], model: Model | None = None
+) -> tuple[str, ...]:
+    """``channels`` as a tuple of distinct simulator outputs or ``model``'s sensor channels
+    (one-line error naming the bad one)."""
     channels = (channels,) if isinstance(channels, str) else tuple(channels)
     if not channels or len(set(channels)) != len(channels):
         raise ValueError(f"channels must name distinct outputs, got {channels}")
+    own = () if model is None else model.channels
     for c in channels:
-        if c not in OUTPUT_NAMES:
-            raise ValueError(f"channel {c!r} is not a simulated output; outputs: {OUTPUT_NAMES}")
+        if c not in OUTPUT_NAMES and c not in own:
+            sensors = f"; sensor channels: {own}" if own else ""
+            raise ValueError(
+                f"channel {c!r} is not a simulated output; outputs: {OUTPUT_NAMES}{sensors}"
+            )
     return channels
+
+
+def fitted_channels(records: Records, model: Model) -> tuple[str, ...]:
+    """The channels fitted unless told: each sensor channel of the rig that some record holds
+    (a record may hold any subset; what it lacks is not fitted there), or, for a rig without
+    sensors, those of :data:`DEFAULT_CHANNELS` that some record holds."""
+    dataset = record_tuple(records)
+    candidates = model.channels or DEFAULT_CHANNELS
+    found = tuple(c for c in candidates if any(c in r.columns for r in dataset))
+    if not found and not model.channels:  # records of other outputs only (a deflection)
+        candidates = tuple(c for c in OUTPUT_NAMES if c != "joint_torque")
+        found = tuple(c for c in candidates if any(c in r.columns for r in dataset))
+    if not found:
+        what = "sensor channels" if model.channels else "fitted outputs"
+        raise ValueError(
+            f"the records hold none of rig {model.name!r}'s {what} {list(candidates)}; "
+            f"record {dataset[0].name!r} has columns {list(dataset[0].columns)}"
+        )
+    return found
+
+
+def record_tuple(records: Records) -> tuple[Record, ...]:
+    """One record or several as a tuple (any sampling intervals; at least one record)."""
+    records = (records,) if isinstance(records, Record) else tuple(records)
+    if not records:
+        raise ValueError("no records given: at least one record is needed")
+    return records
+
+
+def check_inputs(records: Records, model: Model) -> None:
+    """Every record logs the input the rig's drive reads (one line naming the record)."""
+    for r in record_tuple(records):
+        if r.input_name != model.drive.name:
+            raise ValueError(
+                f"record {r.name!r} logs {r.input_name!r} but rig {model.name!r} has a "
+                f"{model.drive.name} drive, which reads a {model.drive.name!r} column"
+            )
 
 
 def check_weights(weights: Mapping[str, float] | None, channels: Sequence[str]) -> tuple:
@@ -197,15 +241,16 @@ def check_weights(weights: Mapping[str, float] | None, channels: Sequence[str]) 
 def noise_weights(records: Records, noise: Noise,
                   channels: Sequence[str] = DEFAULT_CHANNELS) -> dict[str, float]:
     """Channel weights from noise levels (a white σ or a :class:`NoiseLevel` per channel):
-    ``w_c = mean_r ms(y_rc) / σ_c²``, which makes the objective's residual ``(ŷ − y)/σ_c`` up to
-    one common factor (module docstring). Every channel in ``channels`` needs a level."""
+    ``w_c = mean_r ms(y_rc) / σ_c²`` over the records that hold the channel, which makes the
+    objective's residual ``(ŷ − y)/σ_c`` up to one common factor (module docstring). Every
+    channel in ``channels`` needs a level."""
     levels = noise_levels(noise, channels)
     missing = [c for c in channels if c not in levels]
     if missing:
         raise ValueError(f"noise level missing for channel(s) {missing}: give one for every "
                          f"fitted channel {list(channels)}")
     dataset = as_dataset(records)
-    return {c: float(np.mean([np.mean(r.channel(c) ** 2) for r in dataset]))
+    return {c: float(np.mean([np.mean(r.channel(c) ** 2) for r in dataset if c in r.columns]))
             / levels[c].sigma**2 for c in channels}
 
 
@@ -257,7 +302,7 @@ def build_objective(
     model: Model | None = None,
     *,
     weights: Mapping[str, float] | None = None,
-    channels: Sequence[str] = DEFAULT_CHANNELS,
+    channels: Sequence[str] | None = None,
     fixed: Mapping[str, ArrayLike] | None = None,
     bounds: Mapping[str, tuple[float, float]] | None = None,
     noise: Noise | None = None,
@@ -266,15 +311,24 @@ def build_objective(
 
     ``weights`` maps channel → weight (default 1 each), or ``noise`` maps channel → noise level
     and the weights follow from it (:func:`noise_weights`); ``fixed`` maps parameter → value held
-    fixed; ``bounds`` maps parameter → ``(lower, upper)`` replacing its search bounds. Channels
-    of weight 0 are left out of the objective altogether. Every
-    argument is validated and errors name the record, channel or parameter at fault.
+    fixed (besides the rig's own fixed parameters, unless ``bounds`` frees one); ``bounds`` maps
+    parameter → ``(lower, upper)`` replacing its search bounds. ``channels`` defaults to
+    :func:`fitted_channels`; a record that lacks a fitted channel adds no residual for it.
+    Channels of weight 0 are left out of the objective altogether. Every argument is validated
+    and errors name the record, channel or parameter at fault.
     """
     model = Model() if model is None else model
     if not isinstance(model, Model):
         raise TypeError(f"model must be a jaxflex Model, got {type(model).__name__}")
     dataset = as_dataset(records)
-    channels = check_channels(channels)
+    check_inputs(dataset, model)
+    channels = fitted_channels(dataset, model) if channels is None else check_channels(
+        channels, model)
+    for c in channels:
+        if not any(c in r.columns for r in dataset):
+            dataset[0].channel(c)  # a KeyError naming the record, the channel and its columns
+    own_fixed = {k: v for k, v in model.fixed_values.items() if k not in (bounds or {})}
+    fixed = own_fixed | dict(fixed or {})
     if noise is not None:
         if weights is not None:
             raise ValueError("give channel weights or noise levels, not both")
@@ -299,6 +353,10 @@ def build_objective(
             record = dataset[i]
             row, srow = [], []
             for c, w in zip(channels, weight_values, strict=True):
+                if c not in record.columns:  # not logged here: no residual
+                    row.append(np.zeros(n))
+                    srow.append(0.0)
+                    continue
                 y = record.channel(c)
                 rms = float(np.sqrt(np.mean(y**2)))
                 if not rms > 0:
@@ -310,7 +368,7 @@ def build_objective(
                 srow.append(math.sqrt(w / (total * n_records * n)) / rms)
             ys.append(row)
             ss.append(srow)
-        torque.append(jnp.asarray(np.stack([dataset[i].torque for i in members])))
+        torque.append(jnp.asarray(np.stack([dataset[i].input for i in members])))
         measured.append(jnp.asarray(np.asarray(ys)))
         scale.append(jnp.asarray(np.asarray(ss)))
     return Objective(
@@ -329,4 +387,5 @@ def build_objective(
 
 
 __all__ = ["DEFAULT_CHANNELS", "Objective", "as_dataset", "build_objective", "check_channels",
-           "check_weights", "free_specs", "noise_weights"]
+           "check_inputs", "check_weights", "fitted_channels", "free_specs", "noise_weights",
+           "record_tuple"]

@@ -180,7 +180,7 @@ def remove_accelerometer_offset(
     time, accel = record.time, record.tip_acceleration
     if quiet_window is None:
         threshold = _nonnegative(torque_threshold, "torque_threshold")
-        active = np.flatnonzero(np.abs(record.torque) > threshold)
+        active = np.flatnonzero(np.abs(record.input) > threshold)
         end = int(active[0]) if active.size else record.n_samples
         if end == 0:
             warnings.warn(

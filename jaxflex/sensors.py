@@ -14,25 +14,29 @@ at those *stations* (:mod:`jaxflex.stations`) as linear maps of its modal state.
 * :class:`Accelerometer` at ``x`` — ``(r + x)·θ'' + ẅ(x)`` (``r`` the clamp offset);
 * :class:`DeflectionSensor` at ``x`` — ``w(x)`` in the hub frame (a tip laser, a camera).
 
-A calibration that is not known is an effect on the readings (``sensor_gain``, ``sensor_offset``
-in :mod:`jaxflex.effects`), identified with the physical parameters: :func:`calibrated` applies
-it to a simulation's outputs, :func:`readings` to a sensor's reading.
+A rig (:class:`~jaxflex.model.Model`) holds its sensors; a simulation of it gives each sensor's
+:meth:`~Sensor.reading` under the sensor's channel name (``outputs.channel("tip_acc")``). The
+reading is taken relative to rest, ``gain · quantity``: a logged record is re-zeroed at rest
+(:mod:`jaxflex.measured`), which removes the offset. A calibration that is not known is an effect
+on the readings (``sensor_gain``, ``sensor_offset`` in :mod:`jaxflex.effects`), identified with
+the physical parameters: :func:`calibrated` applies it to a simulation's outputs.
 """
 
 from __future__ import annotations
 
-import dataclasses
 import math
 from collections.abc import Mapping, Sequence
-from typing import ClassVar
+from typing import TYPE_CHECKING, ClassVar
 
 import equinox as eqx
 import numpy as np
 from jaxtyping import Array, Float
 
-from jaxflex.model import Model
 from jaxflex.parameters import Params
-from jaxflex.simulation import OUTPUT_NAMES, Outputs
+
+if TYPE_CHECKING:
+    from jaxflex.model import Model
+    from jaxflex.simulation import Outputs
 
 
 class Sensor(eqx.Module):
@@ -71,9 +75,18 @@ class Sensor(eqx.Module):
         """The physical quantity the sensor responds to, from a simulation of ``model``."""
         raise NotImplementedError
 
+    def reading(self, model: Model, outputs: Outputs) -> Float[Array, "*batch n"]:
+        """The reading relative to rest, ``gain · quantity``, from a simulation of ``model``
+        (a sensor at the tip or clamp reads the simulator's own output there)."""
+        mapping = self.simulated_output(model)
+        if mapping is not None:
+            output, factor = mapping
+            return self.gain * factor * getattr(outputs, output)
+        return self.gain * self.quantity(model, outputs)
+
     def measure(self, model: Model, outputs: Outputs) -> Float[Array, "*batch n"]:
-        """The noise-free reading: ``gain · quantity + offset``."""
-        return self.gain * self.quantity(model, outputs) + self.offset
+        """The noise-free reading as logged: ``gain · quantity + offset``."""
+        return self.reading(model, outputs) + self.offset
 
     @property
     def noise_std(self) -> float:
@@ -98,8 +111,8 @@ class Sensor(eqx.Module):
         if self.position not in model.stations:
             raise ValueError(
                 f"{self.kind} {self.channel}: the model has no station at x = {self.position!r} "
-                f"m (stations: {list(model.stations)}); build it with Arm.model() or "
-                "with_stations(model, sensors)"
+                f"m (stations: {list(model.stations)}); give the model the sensor: "
+                "Model(sensors=...)"
             )
         return model.stations.index(self.position)
 
@@ -241,22 +254,19 @@ SENSORS: dict[str, type[Sensor]] = {
 """Sensor kind (its ``type`` in an arm file) → class."""
 
 
-def stations(sensors: Sequence[Sensor]) -> tuple[float, ...]:
-    """The link positions the sensors need, sorted, each once."""
-    return tuple(sorted({s.position for s in sensors if s.position is not None}))
-
-
-def with_stations(model: Model, sensors: Sequence[Sensor]) -> Model:
-    """``model`` with a station at every link sensor's position."""
-    return dataclasses.replace(model, stations=stations(sensors))
-
-
 def calibrated(model: Model, params: Params, outputs: Outputs) -> Outputs:
     """``outputs`` after the model's effects on the readings (a sensor's gain or offset, see
-    :meth:`~jaxflex.effects.Effect.readings`); the motion is what the solve gave."""
-    standard = {name: outputs.channel(name) for name in OUTPUT_NAMES}
-    changed = model.readings(params, standard)
-    names = [n for n in OUTPUT_NAMES if changed[n] is not standard[n]]
+    :meth:`~jaxflex.effects.Effect.readings`), on the simulator's outputs and the sensors'
+    readings alike; the motion is what the solve gave."""
+    from jaxflex.simulation import OUTPUT_NAMES
+
+    own = dict(outputs.readings or {})
+    standard = {name: getattr(outputs, name) for name in OUTPUT_NAMES}
+    given = standard | own
+    changed = model.readings(params, given)
+    names = [n for n in OUTPUT_NAMES if changed[n] is not given[n]]
+    if own and any(changed[c] is not own[c] for c in own):
+        outputs = eqx.tree_at(lambda o: o.readings, outputs, {c: changed[c] for c in own})
     if not names:
         return outputs
     return eqx.tree_at(
@@ -265,30 +275,17 @@ def calibrated(model: Model, params: Params, outputs: Outputs) -> Outputs:
 
 
 def readings(
-    sensors: Sequence[Sensor],
     model: Model,
     outputs: Outputs,
     channels: Sequence[str] | None = None,
     params: Params | None = None,
 ) -> dict[str, Array]:
-    """Noise-free readings by channel (all sensors, or those whose channel is in ``channels``).
-
-    A record may hold any subset of an arm's sensors: pass its columns as ``channels``. With
-    ``params``, the model's effects on the readings act too: a sensor whose standard output
-    (:meth:`Sensor.simulated_output`) an effect changed reads ``gain·factor·output + offset``
-    from the changed output.
-    """
-    chosen = [s for s in sensors if channels is None or s.channel in channels]
+    """The rig's sensor readings relative to rest, by channel (all, or those in ``channels``:
+    a record may hold any subset of the rig's sensors). With ``params`` the model's effects on
+    the readings act too (:func:`calibrated`)."""
     changed = outputs if params is None else calibrated(model, params, outputs)
-    values = {}
-    for sensor in chosen:
-        mapping = sensor.simulated_output(model)
-        if mapping is not None and changed.channel(mapping[0]) is not outputs.channel(mapping[0]):
-            output, factor = mapping
-            values[sensor.channel] = sensor.gain * factor * changed.channel(output) + sensor.offset
-        else:
-            values[sensor.channel] = sensor.measure(model, outputs)
-    return values
+    own = changed.readings or {}
+    return {c: own[c] for c in model.channels if channels is None or c in channels}
 
 
 def noise_levels(sensors: Sequence[Sensor]) -> Mapping[str, float]:

@@ -73,11 +73,18 @@ class Outputs(eqx.Module):
     station_deflection: Float[Array, "*batch n k"] | None = None  # w(x_k), m
     station_curvature: Float[Array, "*batch n k"] | None = None  # w''(x_k), 1/m
     station_acceleration: Float[Array, "*batch n k"] | None = None  # (r + x_k)θ'' + ẅ(x_k)
+    # the model's sensors' readings relative to rest, by channel; None for a model without
+    readings: dict[str, Float[Array, "*batch n"]] | None = None
 
     def channel(self, name: str) -> Array:
-        """One output by name (raises a ValueError listing the valid names)."""
+        """One output or sensor reading by name (a reading first: a sensor may log a channel
+        named as an output); a ValueError lists the valid names."""
+        if self.readings is not None and name in self.readings:
+            return self.readings[name]
         if name not in OUTPUT_NAMES:
-            raise ValueError(f"unknown output {name!r}; outputs are {list(OUTPUT_NAMES)}")
+            own = [] if self.readings is None else list(self.readings)
+            raise ValueError(f"unknown output {name!r}; outputs are {list(OUTPUT_NAMES)}"
+                             + (f", sensor channels {own}" if own else ""))
         return getattr(self, name)
 
 
@@ -537,8 +544,16 @@ def simulate_core(
     _, out = jax.lax.scan(sample, state0, fine, unroll=SCAN_UNROLL)
     if return_states:
         out, states = out
-        return Outputs(*out), states
-    return Outputs(*out)
+        return _with_readings(model, Outputs(*out)), states
+    return _with_readings(model, Outputs(*out))
+
+
+def _with_readings(model: Model, outputs: Outputs) -> Outputs:
+    """``outputs`` with each of the model's sensors' readings (none without sensors)."""
+    if not model.sensors:
+        return outputs
+    readings = {s.channel: s.reading(model, outputs) for s in model.sensors}
+    return eqx.tree_at(lambda o: o.readings, outputs, readings, is_leaf=lambda x: x is None)
 
 
 @eqx.filter_jit

@@ -1,14 +1,21 @@
-"""Arms: arm files describe a rig completely; errors name the file and key; reference = today."""
+"""Arm files describe a rig completely (one Model); errors name the file and key; reference =
+today; every rig round-trips exactly through TOML and a fit file."""
 
+import json
+import tomllib
 from pathlib import Path
+from typing import ClassVar
 
+import equinox as eqx
 import numpy as np
 import pytest
 
 from jaxflex import Model, identify, make_records, reference_parameters, simulate
-from jaxflex.arm import Arm, ArmError, arm_from_dict, load_arm
+from jaxflex.arm import ArmError, arm_from_dict, arm_to_dict, arm_to_toml, load_arm
 from jaxflex.drives import VoltageDrive
-from jaxflex.sensors import with_stations
+from jaxflex.effects import Effect, SensorGain, register_effect
+from jaxflex.parameters import ParameterSpec
+from jaxflex.sensors import Accelerometer, DeflectionSensor, Encoder, StrainGauge, Tachometer
 from jaxflex.signals import reference_input
 from jaxflex.simulation import OUTPUT_NAMES
 
@@ -19,16 +26,14 @@ BED = Model().testbed  # the reference testbed
 
 def test_reference_arm_file_is_exactly_the_reference_testbed():
     arm = load_arm(REFERENCE)
-    assert Arm().model() == Model()
-    assert arm.model() == with_stations(Model(), arm.sensors) and arm.model().stations == (0.5,)
-    assert [s.channel for s in arm.sensors] == ["joint_angle", "tip_acceleration"]
-    assert arm.fixed == () and arm.source == str(REFERENCE)
+    assert arm == Model()
+    assert arm.sensors == () and arm.stations == () and arm.fixed == ()
     ref = reference_parameters()
-    assert {k: float(v) for k, v in arm.reference_parameters().items()} == {
+    assert {k: float(v) for k, v in arm.space.reference().items()} == {
         k: float(v) for k, v in ref.items()
     }
     torque = reference_input("pulse")[1]
-    today, from_file = simulate(Model(), ref, torque), simulate(arm.model(), ref, torque)
+    today, from_file = simulate(Model(), ref, torque), simulate(arm, ref, torque)
     for name in OUTPUT_NAMES:
         np.testing.assert_array_equal(getattr(from_file, name), getattr(today, name))
 
@@ -37,7 +42,7 @@ def test_reference_arm_file_reproduces_a_fit_bit_for_bit():
     records = make_records(inputs=("pulse",), noise=False)
     kwargs = dict(generations=2, population=12, refine=False, intervals=False, seed=3)
     today = identify(records, **kwargs)
-    from_file = identify(records, load_arm(REFERENCE).model(), **kwargs)
+    from_file = identify(records, load_arm(REFERENCE), **kwargs)
     assert from_file.params == today.params
     np.testing.assert_array_equal(from_file.history.best, today.history.best)
 
@@ -135,8 +140,7 @@ def test_fixed_parameters_and_effects(tmp_path):
     arm = load_arm(path)
     assert arm.fixed == ("b_v",) and arm.fixed_values == {"b_v": 0.5}
     assert arm.space["b_v"].lower <= 0.5 <= arm.space["b_v"].upper
-    model = arm.model()
-    assert model.effect_names == ("gravity",) and model.space.names[-1] == "phi"
+    assert arm.effect_names == ("gravity",) and arm.space.names[-1] == "phi"
 
 
 def test_arm_from_dict_without_a_file():
@@ -151,7 +155,7 @@ def test_arm_from_dict_without_a_file():
     }
     arm = arm_from_dict(data)
     assert arm.testbed == BED.replace(length=1.0, width=0.05, thickness=0.005, density=7850.0)
-    assert arm.drive.gain == 8.925 and arm.source == "arm"
+    assert arm.drive.gain == 8.925 and arm.name == "steel"
     data["parameters"]["E"]["lower"] = -1.0
     with pytest.raises(ArmError, match=r"^arm: parameters.E.lower: expected a positive number"):
         arm_from_dict(data)
@@ -192,7 +196,70 @@ def test_n_modes_travels_from_the_arm_file_through_a_fit_description(tmp_path):
     assert "n_modes = 8" in text
     path = tmp_path / "truncated.toml"
     path.write_text(text)
-    model = load_arm(path).model()
+    model = load_arm(path)
     assert model.n_modes == 8
     assert build_model(describe_model(model)).n_modes == 8
-    assert "n_modes" not in describe_model(load_arm(ARMS / "reference.toml").model())
+    assert "n_modes" not in describe_model(load_arm(ARMS / "reference.toml"))["simulation"]
+
+
+class _HubSpring(Effect):
+    """A user's own effect: a torsional spring at the hub, ``k_s·θ`` opposing the angle."""
+
+    name: ClassVar[str] = "hub_spring"
+    parameters: ClassVar[tuple[ParameterSpec, ...]] = (
+        ParameterSpec("k_s", "N m/rad", lower=0.0, upper=5.0, reference=0.5, null=0.0,
+                      log_scale=False, description="hub spring stiffness"),
+    )
+    preload: float = eqx.field(static=True, default=0.0)
+
+    def structure(self, structure, params):
+        return eqx.tree_at(lambda s: s.stiffness, structure,
+                           structure.stiffness.at[0, 0].add(params["k_s"]))
+
+
+def _odd_rig() -> Model:
+    """A rig unlike the reference strip: other geometry, a voltage drive, sensors part-way
+    along the link, an identified gain, a fixed parameter, a user's own effect, 8 modes."""
+    register_effect(_HubSpring)
+    text = (ARMS / "quanser_rotflex.toml").read_text()
+    rig = arm_from_dict(tomllib.loads(text))
+    sensors = (*rig.sensors, Accelerometer(channel="acc_mid", x=0.3, gain=0.102, noise=0.01),
+               DeflectionSensor(channel="laser", x=0.419), StrainGauge(channel="sg", x=0.2))
+    return rig.replace(
+        name="odd", sensors=sensors, fixed=("beta",), n_modes=8,
+        effects=(_HubSpring(preload=0.25), SensorGain(channel="acc_mid", reference=0.102,
+                                                      lower=0.05, upper=0.2)),
+    )
+
+
+@pytest.mark.parametrize("name", ["reference", "quanser_rotflex", "daisy_robot_arm", "odd"])
+def test_every_rig_round_trips_through_toml_and_a_fit_file_with_identical_simulations(
+    tmp_path, name
+):
+    from jaxflex.identification import build_model, describe_model
+
+    rig = _odd_rig() if name == "odd" else load_arm(ARMS / f"{name}.toml")
+    path = tmp_path / "rig.toml"
+    path.write_text(arm_to_toml(rig))
+    again = load_arm(path)
+    from_fit = build_model(json.loads(json.dumps(describe_model(rig))))
+    assert again == rig and from_fit == rig
+    assert arm_to_dict(again) == arm_to_dict(rig)
+    params = rig.space.reference()
+    signal = reference_input("pulse", 0.5, 0.3, rig.testbed.dt)[1]
+    first, second = simulate(rig, params, signal), simulate(from_fit, params, signal)
+    for channel in (*OUTPUT_NAMES, *rig.channels):
+        np.testing.assert_array_equal(second.channel(channel), first.channel(channel))
+
+
+def test_a_rig_refuses_sensors_that_read_its_input_or_time_or_lie_beyond_the_link():
+    rig = load_arm(ARMS / "quanser_rotflex.toml")
+    with pytest.raises(ValueError, match="sensor channel 'voltage' is the voltage drive's input"):
+        rig.replace(sensors=(Encoder(channel="voltage"),))
+    with pytest.raises(ValueError, match="sensor channel 'time' is time, not a reading"):
+        rig.replace(sensors=(Encoder(channel="time"),))
+    with pytest.raises(ValueError, match=r"sensor tip at x = 0.5 m lies beyond the link "
+                                         r"\(length 0.419 m\)"):
+        rig.replace(sensors=(Accelerometer(channel="tip", x=0.5),))
+    with pytest.raises(ValueError, match=r"two sensors log the channel\(s\) \['a'\]"):
+        rig.replace(sensors=(Encoder(channel="a"), Tachometer(channel="a")))

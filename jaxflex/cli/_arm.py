@@ -1,31 +1,27 @@
-"""``--arm FILE`` and ``--window T0:T1``: every command on a real rig, through one set of helpers.
+"""``--arm RIG`` and ``--window T0:T1``: the rig of every command, through one set of helpers.
 
-:func:`add_arm_arguments` adds the options, :func:`arm_of` finds the arm (``--arm``, or the one
-a fit was made with), :func:`model_records` maps records as the rig logged them onto the arm's
-model, :func:`arm_fit_keywords` adds the arm's fixed parameters and fitted channels and
-:func:`arm_settings` is what a result records of its arm.
-
-With an arm file, ``identify`` takes the records as the rig logged them (the drive's input
-column, the sensors' channels; :mod:`jaxflex.measured`), fits the arm's model and records the
-arm file and window in the fit's settings; ``validate`` then finds the arm there, scores every
-sensor channel of each record over the whole record (or ``--window``) and writes
-``{"records": [{"name", "role", "nrmse": {channel: percent}}]}`` with ``--json``.
+Every command works on one rig (:class:`~jaxflex.model.Model`): ``--arm`` names an arm file or
+a packaged rig; without it, the reference testbed; a command given a fit works on the rig the
+fit carries whole (a later ``--arm`` must name the same rig). :func:`rig_of` finds it,
+:func:`ready_records` makes records as the rig logged them ready for its model (each cut to
+``--window``, its sensors re-zeroed at rest; :mod:`jaxflex.measured`) and :func:`rig_settings`
+is what a result records of where its rig came from.
 """
 
 from __future__ import annotations
 
 import argparse
-import dataclasses
 import os
 from pathlib import Path
 from typing import TYPE_CHECKING
 
-from jaxflex._io import same_file
 from jaxflex.cli import UsageError, load_records
 
 if TYPE_CHECKING:
-    from jaxflex.arm import Arm
     from jaxflex.data import Record
+    from jaxflex.model import Model
+
+Window = tuple[float, float] | None
 
 
 def add_window_argument(p: argparse.ArgumentParser) -> None:
@@ -33,7 +29,7 @@ def add_window_argument(p: argparse.ArgumentParser) -> None:
                    help="use only T0 <= t <= T1 (s, in the records' own time)")
 
 
-def parse_window(text: str | None) -> tuple[float, float] | None:
+def parse_window(text: str | None) -> Window:
     """``"T0:T1"`` → ``(T0, T1)``; None stays None."""
     if text is None:
         return None
@@ -48,15 +44,16 @@ def parse_window(text: str | None) -> tuple[float, float] | None:
 
 
 def add_arm_arguments(p: argparse.ArgumentParser, *, window: bool = True) -> None:
-    """``--arm ARM.toml`` (and ``--window T0:T1`` where records are read) on a command."""
-    p.add_argument("--arm", metavar="ARM.toml",
-                   help="the rig's arm file (see jaxflex.arm): its model, drive and sensors")
+    """``--arm RIG`` (and ``--window T0:T1`` where records are read) on a command."""
+    p.add_argument("--arm", metavar="RIG",
+                   help="the rig: an arm file (see jaxflex.arm) or a packaged rig's name "
+                        "(default: the reference testbed, or the rig a given fit carries)")
     if window:
         add_window_argument(p)
 
 
-def load_arm_file(path: str | os.PathLike, option: str = "--arm") -> Arm:
-    """The arm file ``path``; its errors are one-line usage errors."""
+def load_arm_file(path: str | os.PathLike, option: str = "--arm") -> Model:
+    """The rig of arm file ``path``; its errors are one-line usage errors."""
     from jaxflex.arm import ArmError, load_arm
 
     try:
@@ -66,35 +63,55 @@ def load_arm_file(path: str | os.PathLike, option: str = "--arm") -> Arm:
         raise UsageError(message if option == "--arm" else f"{option}: {message}") from None
 
 
-def arm_of(args: argparse.Namespace, fit=None) -> tuple[Arm, str] | None:
-    """The arm of a command, and its file: ``--arm``, else the one ``fit`` was made with (a fit
-    records its arm, so later commands need no ``--arm``); None when neither names one. A
-    ``--window`` without an arm is refused."""
-    recorded = with_arm(fit)
+def rig_of(args: argparse.Namespace, fit=None) -> tuple[Model, str | None]:
+    """The command's rig and the arm file it came from (None: none read): the one ``fit``
+    carries (``--arm``, if given, must describe it), else ``--arm``, else the reference."""
+    from jaxflex.model import Model
+
     given = getattr(args, "arm", None)
-    if given is not None and recorded is not None and not same_file(given, recorded):
-        raise UsageError(
-            f"--arm {given}: the fit was made with the arm {recorded}; leave --arm out"
-        )
-    path = given if given is not None else recorded
-    if path is None:
-        if getattr(args, "window", None) is not None:
-            raise UsageError("--window needs --arm (or a fit made with --arm)")
-        return None
-    return load_arm_file(path, "--arm" if given is not None else "the fit's arm"), str(path)
+    arm = None if given is None else load_arm_file(given)
+    source = None if given is None else str(given)
+    if fit is None:
+        return (Model() if arm is None else arm), source
+    carried = fit.model()
+    if arm is not None:
+        own = {e.name for e in arm.effects}
+        bare = carried.replace(effects=tuple(e for e in carried.effects if e.name in own))
+        if bare != arm:
+            raise UsageError(f"--arm {given}: the fit was made with another rig "
+                             f"({carried.name!r}), which it carries; leave --arm out")
+    return carried, source
 
 
-def model_records(arm: Arm, records, window: tuple[float, float] | None) -> list[Record]:
-    """Records as the rig logged them, made ready for the arm's model
-    (:func:`jaxflex.measured.model_record`), with command-line errors."""
-    from jaxflex.measured import model_record
+def with_effects(model: Model, names: list[str], option: str = "--effect") -> Model:
+    """``model`` with the named effects added (an unknown or doubled name names the option)."""
+    from jaxflex.cli._options import model_from
 
-    return [_speaking_cli(model_record, arm, r, window) for r in records]
+    added = model_from(names, option).effects
+    twice = sorted({e.name for e in added} & set(model.effect_names))
+    if twice:
+        raise UsageError(f"{option} {twice[0]}: the rig {model.name!r} has it already")
+    return model.with_effects(*added)
 
 
-def arm_settings(arm_file: str, window: tuple[float, float] | None) -> dict:
-    """What a result records about its arm: the file (absolute) and the window."""
-    return {"arm": str(Path(arm_file).resolve()), "window": window}
+def ready_records(model: Model, records, window: Window) -> list[Record]:
+    """Records as the rig logged them, made ready for its model
+    (:func:`jaxflex.measured.prepare`), with command-line errors."""
+    from jaxflex.measured import prepare
+
+    return _speaking_cli(prepare, model, list(records), [window] * len(records))
+
+
+def rig_settings(model: Model, source: str | None, window: Window) -> dict:
+    """What a result records of its rig: its name, the arm file it was read from (absolute;
+    for information: the result carries the rig itself) and the window."""
+    where = None if source is None or not Path(source).is_file() else str(Path(source).resolve())
+    return {"rig": model.name, "arm": where or source, "window": window}
+
+
+def arm_inputs(source: str | None) -> list[str]:
+    """The arm file among a command's inputs (outputs may not replace it)."""
+    return [source] if source is not None and Path(source).is_file() else []
 
 
 def refuse_two_link(records) -> None:
@@ -118,88 +135,20 @@ def load_rig_records(paths, args: argparse.Namespace):
     return records
 
 
-def arm_fit_keywords(args: argparse.Namespace, function, arm: Arm, record) -> dict:
-    """The fitting keywords of ``identify`` (or ``study``) on an arm's records: the shared
-    options, the arm's fixed parameters under ``--fix`` and the channels its sensors give."""
-    from jaxflex.cli._options import fit_keywords
-    from jaxflex.measured import fit_channels
+def sensor_noise(model: Model, records, channels) -> dict:
+    """The noise levels the rig's sensors state on ``channels`` (``--noise`` overrides)."""
+    from jaxflex.measured import fit_noise
 
-    options = fit_keywords(args, function)
-    options["fixed"] = arm.fixed_values | options.get("fixed", {}) or None
-    options["channels"] = _speaking_cli(fit_channels, arm, record)
-    return options
-
-
-def identify_with_arm(args: argparse.Namespace, arm: Arm, arm_file: str) -> int:
-    """``jaxflex identify DATA... --arm ARM.toml``: see the module doc."""
-    from jaxflex import identify
-    from jaxflex._io import all_or_nothing
-    from jaxflex.cli._checks import JSON_SUFFIXES, check_outputs
-    from jaxflex.cli._options import model_from
-    from jaxflex.cli.identify import search, sources
-    from jaxflex.distributed import is_main
-
-    window = parse_window(args.window)
-    records = load_rig_records(args.data, args)
-    (out,) = check_outputs([("--out", args.out, JSON_SUFFIXES)], overwrite=args.overwrite,
-                           inputs=[*sources(records), arm_file])
-    ready = model_records(arm, records, window)
-    options = arm_fit_keywords(args, identify, arm, records[0])
-    fit = search(args, ready, arm.model(*model_from(args.effect).effects), options)
-    if not is_main():
-        return 0
-    fit = dataclasses.replace(fit, settings=fit.settings | arm_settings(arm_file, window))
-    print(fit.summary(), end="")
-    with all_or_nothing():
-        fit.to_json(out, overwrite=args.overwrite)
-    print(f"wrote {out}")
-    return 0
-
-
-def validate_with_arm(args: argparse.Namespace, fit, model) -> int:
-    """``jaxflex validate DATA... --fit FIT.json`` for a fit made with ``--arm``."""
-    from jaxflex._io import write_json
-    from jaxflex.cli._checks import JSON_SUFFIXES, check_outputs
-    from jaxflex.cli.identify import sources
-    from jaxflex.measured import validate
-
-    arm = load_arm_file(fit.settings["arm"], "the fit's arm")
-    window = parse_window(args.window)
-    # one by one: a held-out record may be sampled at another rate than the fitted one
-    records = [r for name in args.data for r in load_rig_records([name], args)]
-    (target,) = check_outputs([("--json", args.json, JSON_SUFFIXES)], overwrite=args.overwrite,
-                              inputs=[*sources(records), args.fit]) or [None]
-    scores = _speaking_cli(
-        validate, arm, fit.params, records, [window] * len(records), effects=model.effects
-    )
-    rows = [
-        {
-            "name": name,
-            "role": "fit" if name in fit.record_names else "held-out",
-            "nrmse": channels,
-        }
-        for name, channels in scores.items()
-    ]
-    for row in rows:
-        cells = ", ".join(f"{c} {v:.2f} %" for c, v in row["nrmse"].items())
-        print(f"{row['name']:<20} {row['role']:<9} NRMSE {cells}")
-    if target is not None:
-        write_json(target, {"arm": fit.settings["arm"], "window": window, "records": rows},
-                   overwrite=args.overwrite)
-        print(f"wrote {target}")
-    return 0
+    if not model.sensors:
+        return {}
+    return {c: v for c, v in _speaking_cli(fit_noise, model, records[0]).items()
+            if c in channels}
 
 
 def _speaking_cli(function, *args, **kwargs):
     """``function(*args, **kwargs)`` with its errors in the command line's words."""
     try:
         return function(*args, **kwargs)
-    except ValueError as err:
-        raise UsageError(str(err).replace("window=(t0, t1)", "--window T0:T1")) from None
-
-
-def with_arm(fit) -> Path | None:
-    """The arm file a fit was made with, or None."""
-    settings = getattr(fit, "settings", None)
-    arm = settings.get("arm") if isinstance(settings, dict) else None
-    return None if arm is None else Path(arm)
+    except (KeyError, ValueError) as err:
+        message = err.args[0] if isinstance(err, KeyError) and err.args else str(err)
+        raise UsageError(str(message).replace("window=(t0, t1)", "--window T0:T1")) from None

@@ -14,7 +14,7 @@ import argparse
 import math
 
 from jaxflex.cli import UsageError
-from jaxflex.cli._arm import add_arm_arguments, arm_of
+from jaxflex.cli._arm import add_arm_arguments, arm_inputs, rig_of
 from jaxflex.cli._checks import (
     FIGURE_SUFFIXES,
     RECORD_SUFFIXES,
@@ -118,19 +118,14 @@ def run(args: argparse.Namespace) -> int:
     from jaxflex._io import all_or_nothing
     from jaxflex.data import save_record
     from jaxflex.design import compare_inputs, design_input, interval_table, paper_inputs
-    from jaxflex.model import Model
 
-    found = arm_of(args)
+    model, source = rig_of(args)
     out, *plots = check_outputs(
         [("--out", args.out, RECORD_SUFFIXES), ("--plot", args.plot, FIGURE_SUFFIXES),
          ("--plot-intervals", args.plot_intervals, FIGURE_SUFFIXES)],
-        overwrite=args.overwrite, inputs=(found or ())[1:],
+        overwrite=args.overwrite, inputs=arm_inputs(source),
     )
-    if found is not None and args.plot is not None:
-        raise UsageError("--plot is not available with --arm (--plot-intervals is)")
-    arm = None if found is None else found[0]
-    model = Model() if arm is None else arm.model()
-    names = None if arm is None else [n for n in model.space.names if n not in arm.fixed]
+    names = [n for n in model.space.names if n not in model.fixed] if model.fixed else None
     rms_torque = args.rms_torque
     if rms_torque is None:
         rms_torque = DEFAULT_RMS_FRACTION * args.max_torque
@@ -172,14 +167,15 @@ def run(args: argparse.Namespace) -> int:
         model, names=names,
     )
     record = result.to_record(out.stem or "designed")
-    if arm is not None:
+    if model.sensors:  # the record the rig would log
         from jaxflex.measured import logged_record
 
         note = {"note": record.metadata["note"].replace(
             "joint_angle and tip_acceleration are", "the sensor channels are"
         )}
-        record = logged_record(arm, result.nominal, result.time, result.torque, name=record.name,
-                               metadata=record.metadata | note | {"arm file": str(arm.source)})
+        record = logged_record(model, result.nominal, result.time, result.torque,
+                               name=record.name,
+                               metadata=record.metadata | note | {"rig": model.name})
     with all_or_nothing():
         save_record(record, out, overwrite=args.overwrite)
         if args.plot:

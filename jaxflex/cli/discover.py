@@ -13,13 +13,14 @@ import argparse
 
 from jaxflex.cli import UsageError
 from jaxflex.cli._arm import (
-    _speaking_cli,
     add_arm_arguments,
-    arm_fit_keywords,
-    arm_of,
+    arm_inputs,
     load_rig_records,
-    model_records,
     parse_window,
+    ready_records,
+    rig_of,
+    sensor_noise,
+    with_effects,
 )
 from jaxflex.cli._checks import (
     JSON_SUFFIXES,
@@ -29,7 +30,7 @@ from jaxflex.cli._checks import (
     read_fit,
     seed,
 )
-from jaxflex.cli._options import add_fit_options, add_record_options, fit_keywords, model_from
+from jaxflex.cli._options import add_fit_options, add_record_options, fit_keywords
 from jaxflex.cli.identify import sources
 
 HELP = "find the physical effects the model is missing: score tests, add, refit, report"
@@ -80,12 +81,13 @@ def run(args: argparse.Namespace) -> int:
         candidates = [n.strip() for n in args.effects.split(",") if n.strip()]
         candidate_set(candidates)  # unknown names fail here, listing the known ones
     keywords = fit_keywords(args, discover)
-    model, initial, fit = model_from(args.effect), None, None
+    initial, fit = None, None
     if args.initial:
         if args.effect:
             raise UsageError("--effect with --initial: the fit file fixes the model's effects")
-        model, initial, fit = read_fit("--initial", args.initial, plain_parameters=True)
-    found = arm_of(args, fit)
+        _, initial, fit = read_fit("--initial", args.initial, plain_parameters=True)
+    rig, source = rig_of(args, fit)
+    model = with_effects(rig, args.effect)
     window = parse_window(args.window)
     records = load_rig_records(args.data, args)
     holdout = None
@@ -104,17 +106,13 @@ def run(args: argparse.Namespace) -> int:
                     for p in report_paths(records.names, directory, args.format)]
     check_outputs(targets, overwrite=args.overwrite,
                   inputs=[*sources(records), *sources(holdout or ()), args.initial,
-                          *(found or ())[1:]])
-    if found is not None:
-        arm, _ = found
-        model = arm.model(*model.effects)
-        keywords = arm_fit_keywords(args, discover, arm, records[0])
-        keywords["channels"] = arm_channels(arm, [*records, *(holdout or ())])
-        keywords["noise"] = arm_noise(arm, records[0], keywords["channels"]) | (
+                          *arm_inputs(source)])
+    records = ready_records(model, records, window)
+    holdout = None if holdout is None else ready_records(model, holdout, window)
+    if model.sensors:  # records as logged: the sensors' noise, scored over the whole record
+        keywords["noise"] = sensor_noise(model, records, model.channels) | (
             keywords.get("noise") or {})
-        keywords["t_end"] = None  # the whole record (or --window), as validate scores it
-        records = model_records(arm, records, window)
-        holdout = None if holdout is None else model_records(arm, holdout, window)
+        keywords["t_end"] = None
     report = discover(
         records, holdout=holdout, model=model, candidates=candidates,
         max_steps=args.max_steps, alpha=args.alpha, seed=args.seed, progress=args.progress,
@@ -138,25 +136,3 @@ def run(args: argparse.Namespace) -> int:
         names = ", ".join(p.name for p in paths[bool(args.json):])
         print(f"wrote {len(paths) - bool(args.json)} files to {args.report}: {names}")
     return 0
-
-
-def arm_noise(arm, record, channels) -> dict:
-    """The noise levels of the arm's sensors on the fitted channels (``--noise`` overrides)."""
-    from jaxflex.measured import fit_noise
-
-    return {c: v for c, v in fit_noise(arm, record).items() if c in channels}
-
-
-def arm_channels(arm, records) -> tuple[str, ...]:
-    """The simulator outputs the arm's sensors give in every record: discover fits those."""
-    from jaxflex.measured import fit_channels
-
-    per_record = [set(_speaking_cli(fit_channels, arm, r)) for r in records]
-    common = tuple(c for c in _speaking_cli(fit_channels, arm, records[0])
-                   if all(c in p for p in per_record))
-    if not common:
-        raise UsageError(
-            f"the records share none of arm {arm.name!r}'s sensor channels "
-            f"{[s.channel for s in arm.sensors]}: discover fits every record on the same ones"
-        )
-    return common

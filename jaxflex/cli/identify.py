@@ -11,7 +11,16 @@ import argparse
 import math
 
 from jaxflex.cli import UsageError
-from jaxflex.cli._arm import add_arm_arguments, arm_of, identify_with_arm, load_rig_records
+from jaxflex.cli._arm import (
+    add_arm_arguments,
+    arm_inputs,
+    load_rig_records,
+    parse_window,
+    ready_records,
+    rig_of,
+    rig_settings,
+    with_effects,
+)
 from jaxflex.cli._checks import (
     FIGURE_SUFFIXES,
     JSON_SUFFIXES,
@@ -20,7 +29,7 @@ from jaxflex.cli._checks import (
     positive_int,
     seed,
 )
-from jaxflex.cli._options import add_fit_options, add_record_options, fit_keywords, model_from
+from jaxflex.cli._options import add_fit_options, add_record_options, fit_keywords
 from jaxflex.cli._processes import add_process_arguments, enter
 
 HELP = "identify the parameters from measured records (DE, GA or PSO + refinement)"
@@ -65,25 +74,27 @@ def register(subparsers: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    import dataclasses
+
     from jaxflex._io import all_or_nothing
     from jaxflex.distributed import is_main
     from jaxflex.identification import identify
 
     if (status := enter(args)) is not None:
         return status
-    found = arm_of(args)
-    if found is not None:
-        if args.plot is not None:
-            raise UsageError("--plot is not available with --arm")
-        return identify_with_arm(args, *found)
+    rig, source = rig_of(args)
+    model = with_effects(rig, args.effect)
+    window = parse_window(args.window)
     records = load_rig_records(args.data, args)
     out, *plot = check_outputs(
         [("--out", args.out, JSON_SUFFIXES), ("--plot", args.plot, FIGURE_SUFFIXES)],
-        overwrite=args.overwrite, inputs=sources(records),
+        overwrite=args.overwrite, inputs=[*sources(records), *arm_inputs(source)],
     )
-    fit = search(args, records, model_from(args.effect), fit_keywords(args, identify))
+    ready = ready_records(model, records, window)
+    fit = search(args, ready, model, fit_keywords(args, identify))
     if not is_main():
         return 0
+    fit = dataclasses.replace(fit, settings=fit.settings | rig_settings(model, source, window))
     print(fit.summary(), end="")
     with all_or_nothing():
         fit.to_json(out, overwrite=args.overwrite)

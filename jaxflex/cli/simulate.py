@@ -12,7 +12,7 @@ import math
 import numpy as np
 
 from jaxflex.cli import UsageError
-from jaxflex.cli._arm import add_arm_arguments, arm_of
+from jaxflex.cli._arm import add_arm_arguments, arm_inputs, rig_of
 from jaxflex.cli._checks import (
     FIGURE_SUFFIXES,
     RECORD_SUFFIXES,
@@ -84,13 +84,16 @@ def parse_assignments(items: list[str]) -> dict[str, float]:
     return values
 
 
-def build_model_and_params(assignments: dict[str, float], effects: str, dt: float, duration: float):
-    """The model (testbed settings and effects applied) and its full parameter set."""
-    from jaxflex.cli._options import model_from
+def build_model_and_params(assignments: dict[str, float], effects: str, dt: float, duration: float,
+                           rig=None):
+    """The model (the rig, default the reference, with testbed settings and effects applied)
+    and its full parameter set."""
+    from jaxflex.cli._arm import with_effects
     from jaxflex.model import Model
-    from jaxflex.testbed import TESTBED_SETTINGS, Testbed
+    from jaxflex.testbed import TESTBED_SETTINGS
 
-    model = model_from([e.strip() for e in effects.split(",") if e.strip()], "--effects")
+    rig = Model() if rig is None else rig
+    model = with_effects(rig, [e.strip() for e in effects.split(",") if e.strip()], "--effects")
     for name in TIMING_SETTINGS:
         if name in assignments:
             raise UsageError(f"--set {name}: use --{name} instead")
@@ -106,8 +109,7 @@ def build_model_and_params(assignments: dict[str, float], effects: str, dt: floa
                 f"--set n_elements must be a whole number, got {settings['n_elements']}"
             )
         settings["n_elements"] = int(settings["n_elements"])
-    testbed = Testbed().replace(**settings, dt=dt, duration=duration)
-    model = Model(testbed, model.effects)
+    model = model.replace(testbed=model.testbed.replace(**settings, dt=dt, duration=duration))
     values = {k: float(v) for k, v in model.space.reference().items()} | params
     model.space.validate(values)
     return model, values
@@ -118,27 +120,28 @@ def run(args: argparse.Namespace) -> int:
     from jaxflex.data import save_record
     from jaxflex.signals import reference_input
     from jaxflex.synthetic import add_measurement_noise, simulated_record
-    from jaxflex.testbed import Testbed
 
-    found = arm_of(args)
-    if found is None and args.rest:
-        raise UsageError("--rest needs --arm (records as a rig logs them)")
-    sampling = Testbed() if found is None else found[0].testbed
+    rig, source = rig_of(args)
+    if not rig.sensors and args.rest:
+        raise UsageError(f"--rest: rig {rig.name!r} has no sensors; records of the simulator's "
+                         "outputs start at rest at t = 0 (give --arm a rig with sensors)")
+    sampling = rig.testbed
     args.dt = sampling.dt if args.dt is None else args.dt
     args.duration = sampling.duration if args.duration is None else args.duration
     if args.duration < 2 * args.dt:
         raise UsageError(f"--duration {args.duration} s is shorter than two samples of {args.dt} s")
     out, *plot = check_outputs(
         [("--out", args.out, RECORD_SUFFIXES), ("--plot", args.plot, FIGURE_SUFFIXES)],
-        overwrite=args.overwrite, inputs=(found or ())[1:],
+        overwrite=args.overwrite, inputs=arm_inputs(source),
     )
-    if found is not None:
-        return simulate_arm(args, found[0], out)
+    if rig.sensors:
+        return simulate_logged(args, rig, out, plot)
     assignments = parse_assignments(args.set)
     n_elements = assignments.get("n_elements", 10)
     check_size(args.duration / args.dt + 1, f"--duration {args.duration:g} s at --dt {args.dt:g} s",
                n_elements=int(n_elements), limit=max_samples(args.max_samples))
-    model, params = build_model_and_params(assignments, args.effects, args.dt, args.duration)
+    model, params = build_model_and_params(assignments, args.effects, args.dt, args.duration,
+                                           rig)
     time, torque = reference_input(args.input, args.amplitude, args.duration, args.dt)
     metadata = {
         "generator": "jaxflex simulate",
@@ -170,18 +173,16 @@ def run(args: argparse.Namespace) -> int:
     return 0
 
 
-def simulate_arm(args: argparse.Namespace, arm, out) -> int:
-    """``simulate --arm``: the arm's model under its drive, written as the rig would log it
-    (the drive's input column and every sensor's channel)."""
+def simulate_logged(args: argparse.Namespace, arm, out, plot) -> int:
+    """``simulate`` on a rig with sensors: its model under its drive, written as the rig would
+    log it (the drive's input column and every sensor's channel)."""
     from jaxflex._io import all_or_nothing
-    from jaxflex.cli._options import model_from
+    from jaxflex.cli._arm import with_effects
     from jaxflex.data import save_record
     from jaxflex.measured import logged_record
     from jaxflex.signals import EXCITATION_AMPLITUDES, REFERENCE_AMPLITUDES, reference_input
     from jaxflex.testbed import TESTBED_SETTINGS
 
-    if args.plot is not None:
-        raise UsageError("--plot is not available with --arm")
     if not (math.isfinite(args.rest) and args.rest >= 0):
         raise UsageError(f"--rest {args.rest!r}: must be a finite number of seconds >= 0")
     assignments = parse_assignments(args.set)
@@ -192,9 +193,9 @@ def simulate_arm(args: argparse.Namespace, arm, out) -> int:
     check_size(n_rest + args.duration / args.dt + 1,
                f"--rest {args.rest:g} s and --duration {args.duration:g} s at --dt {args.dt:g} s",
                n_elements=arm.testbed.n_elements, limit=max_samples(args.max_samples))
-    effects = model_from([e.strip() for e in args.effects.split(",") if e.strip()],
-                         "--effects").effects
-    space = arm.model(*effects).space
+    model = with_effects(arm, [e.strip() for e in args.effects.split(",") if e.strip()],
+                         "--effects")
+    space = model.space
     unknown = sorted(set(assignments) - set(space.names))
     if unknown:
         raise UsageError(f"--set: unknown name(s) {unknown}; known names: {list(space.names)}")
@@ -211,19 +212,28 @@ def simulate_arm(args: argparse.Namespace, arm, out) -> int:
     time = np.arange(signal.size) * args.dt
     metadata = {
         "generator": "jaxflex simulate --arm",
-        "arm file": str(arm.source),
+        "rig": arm.name,
         "input": f"{args.input}, {arm.drive.name} ({arm.drive.unit}), after "
                  f"{n_rest * args.dt:g} s at rest",
         "parameters": ", ".join(f"{k}={float(v)!r}" for k, v in params.items()),
-        "effects": ", ".join(e.name for e in effects) or "none",
+        "effects": ", ".join(model.effect_names) or "none",
         "noise": f"each sensor's noise and quantisation, seed {args.seed}" if args.noise
         else "none",
     }
-    record = logged_record(arm, params, time, signal, effects=effects,
+    record = logged_record(model, params, time, signal,
                            seed=args.seed if args.noise else None, name=args.input,
                            metadata=metadata)
     with all_or_nothing():
         save_record(record, out, overwrite=args.overwrite)
+        if plot:
+            from jaxflex.comparison import channel_units
+            from jaxflex.plots._style import save_figure
+            from jaxflex.plots.simulate import plot_record
+
+            save_figure(plot_record(record, units=channel_units(model, model.channels)),
+                        plot[0], overwrite=args.overwrite)
     print(f"wrote {out}: {record.n_samples} samples of {', '.join(record.columns[1:])} "
-          f"(arm {arm.name!r})")
+          f"(rig {arm.name!r})")
+    for path in plot:
+        print(f"wrote {path}")
     return 0

@@ -12,15 +12,16 @@ import argparse
 from jaxflex.cli import UsageError
 from jaxflex.cli._arm import (
     add_arm_arguments,
-    arm_fit_keywords,
-    arm_of,
-    arm_settings,
+    arm_inputs,
     load_rig_records,
-    model_records,
     parse_window,
+    ready_records,
+    rig_of,
+    rig_settings,
+    with_effects,
 )
 from jaxflex.cli._checks import FIGURE_SUFFIXES, JSON_SUFFIXES, MAX_SEED, check_outputs
-from jaxflex.cli._options import fit_keywords, model_from
+from jaxflex.cli._options import fit_keywords
 from jaxflex.cli._processes import enter
 from jaxflex.cli.identify import add_search_arguments, check_finite_cost, sources
 
@@ -90,20 +91,16 @@ def run(args: argparse.Namespace) -> int:
         return status
     methods = parse_methods(args.methods)
     seeds = parse_seeds(args.seeds)
-    found = arm_of(args)
+    rig, source = rig_of(args)
+    model = with_effects(rig, args.effect)
     window = parse_window(args.window)
     records = load_rig_records(args.data, args)
     out, *plot = check_outputs(
         [("--out", args.out, JSON_SUFFIXES), ("--plot", args.plot, FIGURE_SUFFIXES)],
-        overwrite=args.overwrite, inputs=[*sources(records), *(found or ())[1:]],
+        overwrite=args.overwrite, inputs=[*sources(records), *arm_inputs(source)],
     )
-    model = model_from(args.effect)
-    if found is None:
-        keywords = fit_keywords(args, identify)
-    else:
-        arm, _ = found
-        keywords = arm_fit_keywords(args, identify, arm, records[0])
-        records, model = model_records(arm, records, window), arm.model(*model.effects)
+    keywords = fit_keywords(args, identify)
+    records = ready_records(model, records, window)
     study = run_study(
         records,
         methods,
@@ -120,8 +117,8 @@ def run(args: argparse.Namespace) -> int:
         check_finite_cost(r.cost, "bounds" in keywords)
     if not is_main():
         return 0
-    if found is not None:
-        study = dataclasses.replace(study, settings=study.settings | arm_settings(found[1], window))
+    study = dataclasses.replace(study, settings=study.settings | rig_settings(model, source,
+                                                                               window))
     print(study.table(), end="")
     with all_or_nothing():
         study.to_json(out, overwrite=args.overwrite)

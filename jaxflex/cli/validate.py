@@ -1,8 +1,12 @@
 """``jaxflex validate DATA.csv [...] --fit fit.json [--report DIR]``: the model against records.
 
-Simulates the fitted model under each record's measured torque, prints the Table-3-style table
-(NRMSE per output, FRF NRMSE, held-out relative error) and, with ``--report``, writes the table,
-``comparison.json`` and the figures (one time-domain figure per record and the FRF) into DIR.
+Simulates the fit's rig (the fit carries it whole) under each record's logged input, prints the
+Table-3-style table (NRMSE per channel, FRF NRMSE, held-out relative error) and, with
+``--report``, writes the table, ``comparison.json`` and the figures (one time-domain figure per
+record, every channel in its own unit, and the FRF) into DIR; ``--json`` writes the NRMSE of
+each channel of each record. Records of a rig with sensors are read as the rig logged them
+(cut to ``--window``, re-zeroed at rest) and scored over the whole record or window; records of
+the simulator's outputs over the first ``--t-end`` seconds.
 """
 
 from __future__ import annotations
@@ -10,8 +14,15 @@ from __future__ import annotations
 import argparse
 
 from jaxflex.cli import UsageError
-from jaxflex.cli._arm import add_window_argument, load_rig_records, validate_with_arm, with_arm
+from jaxflex.cli._arm import (
+    add_arm_arguments,
+    load_rig_records,
+    parse_window,
+    ready_records,
+    rig_of,
+)
 from jaxflex.cli._checks import (
+    JSON_SUFFIXES,
     add_max_samples,
     check_directory,
     check_outputs,
@@ -52,9 +63,9 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument(
         "--t-end",
         type=positive_float,
-        default=DEFAULT_T_END,
         metavar="S",
-        help="time-domain metrics over 0 <= t <= S seconds (default: %(default)s)",
+        help=f"time-domain metrics over 0 <= t <= S seconds (default: {DEFAULT_T_END:g} for "
+        "records of the simulator's outputs, the whole record or window for a rig's sensors)",
     )
     p.add_argument(
         "--f-max",
@@ -81,55 +92,68 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         metavar="S",
         help="accelerometer noise standard deviation (m/s^2), for the noise floor",
     )
-    add_window_argument(p)
-    p.add_argument("--json", metavar="TABLE.json", help="for a fit made with --arm: the scores")
+    add_arm_arguments(p)
+    p.add_argument("--json", metavar="TABLE.json",
+                   help="write the NRMSE of each channel of each record as JSON")
     p.set_defaults(func=run)
 
 
 def run(args: argparse.Namespace) -> int:
-    from jaxflex._io import all_or_nothing
+    from jaxflex._io import all_or_nothing, write_json
 
-    model, params, fit = read_fit("--fit", args.fit)
-    if with_arm(fit) is not None:
-        return validate_with_arm(args, fit, model)
-    if args.window is not None or args.json is not None:
-        raise UsageError("--window and --json need a fit made with `jaxflex identify --arm`")
-    records = load_rig_records(args.data, args)
+    _, params, fit = read_fit("--fit", args.fit)
+    model, _ = rig_of(args, fit)
+    window = parse_window(args.window)
+    # one by one: a held-out record may be sampled at another rate than the fitted one
+    records = [r for name in args.data for r in load_rig_records([name], args)]
     check_size(sum(r.n_samples for r in records), f"{len(records)} record(s)",
                n_elements=model.testbed.n_elements, limit=max_samples(args.max_samples))
-    nyquist = 0.5 / records.dt
+    nyquist = 0.5 / max(r.dt for r in records)
     if args.f_max > nyquist:
         raise UsageError(
             f"--f-max {args.f_max:g} Hz is above the records' Nyquist frequency {nyquist:g} Hz "
-            f"(sampled every {records.dt:g} s); give at most --f-max {nyquist:g}"
+            f"(sampled every {max(r.dt for r in records):g} s); give at most --f-max {nyquist:g}"
         )
-    targets = []
+    names = [r.name for r in records]
+    targets = [("--json", args.json, JSON_SUFFIXES)]
     if args.report:
         from jaxflex.plots.compare import report_paths
 
         directory = check_directory("--report", args.report)
-        targets = [("--report", p, None) for p in report_paths(records.names, directory,
-                                                                args.format)]
-    check_outputs(targets, overwrite=args.overwrite, inputs=[*sources(records), args.fit])
+        targets += [("--report", p, None) for p in report_paths(names, directory, args.format)]
+    json_target, *_ = check_outputs(
+        targets, overwrite=args.overwrite, inputs=[*sources(records), args.fit]
+    ) or [None]
+    json_target = json_target if args.json is not None else None
+    ready = ready_records(model, records, window)
+    t_end = args.t_end if args.t_end is not None or model.sensors else DEFAULT_T_END
     frf = FRFSettings(
         f_max=args.f_max, **({"min_input_db": None, "min_coherence": None} if args.raw_frf else {})
     )
     comparison = compare(
         model,
         params,
-        records,
-        fit_names=[n for n in fit.record_names if n in records.names],
-        t_end=args.t_end,
+        ready,
+        fit_names=[n for n in fit.record_names if n in names],
+        t_end=t_end,
         frf=frf,
         encoder_counts=args.encoder_counts,
         accel_sigma=args.accel_sigma,
     )
     print(comparison.table(), end="")
-    if args.report:
-        from jaxflex.plots.compare import save_report
+    with all_or_nothing():
+        if json_target is not None:
+            rows = [{"name": r.name, "role": r.role, "nrmse": dict(r.nrmse)}
+                    for r in comparison.rows]
+            write_json(json_target, {"rig": model.name, "window": window, "t_end": t_end,
+                                     "records": rows}, overwrite=args.overwrite)
+        if args.report:
+            from jaxflex.plots.compare import save_report
 
-        with all_or_nothing():
             paths = save_report(comparison, args.report, overwrite=args.overwrite,
                                 fmt=args.format)
+    if json_target is not None:
+        print(f"wrote {json_target}")
+    if args.report:
         print(f"wrote {len(paths)} files to {args.report}: {', '.join(p.name for p in paths)}")
     return 0

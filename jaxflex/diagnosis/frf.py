@@ -117,7 +117,7 @@ def frf_error(
     ``f_peaks_max``, each paired with the model's nearest peak.
     """
     dt = records[0].dt
-    torques = [r.torque for r in records]
+    torques = [r.input for r in records]
     freqs, h_meas, sxx, syy_meas = _pooled_frf(
         torques, [r.channel(output) for r in records], dt, pad
     )

@@ -59,7 +59,7 @@ class Localisation:
 
 def _masks(record: Record, velocity: np.ndarray, v_zero: float, n_angle_bins: int, reversal_s):
     """Boolean masks of the operating conditions of one record."""
-    torque_on = np.abs(record.torque) > 1e-3 * max(np.max(np.abs(record.torque)), 1e-300)
+    torque_on = np.abs(record.input) > 1e-3 * max(np.max(np.abs(record.input)), 1e-300)
     v_peak = max(float(np.max(np.abs(velocity))), 1e-300)
     slow = np.abs(velocity) < v_zero
     sign = np.sign(np.where(slow, 0.0, velocity))

@@ -330,7 +330,7 @@ def diagnose(
             noise=level,
             whiteness=autocorrelation(res, max_lag, dt),
             input_correlation=cross_correlation(
-                res, [r.torque for r in records], max_lag=min(200, records[0].n_samples // 4),
+                res, [r.input for r in records], max_lag=min(200, records[0].n_samples // 4),
                 dt=dt,
             ),
             spectrum=residual_spectrum(res, dt, noise_sigma=level.sigma),

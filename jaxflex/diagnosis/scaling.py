@@ -31,7 +31,7 @@ def amplitude_scaling(
     records: Sequence[Record], residuals: Sequence[Mapping[str, ArrayLike]]
 ) -> AmplitudeScaling:
     """Residual RMS and NRMSE per record against the record's peak |torque|."""
-    amplitudes = np.array([float(np.max(np.abs(r.torque))) for r in records])
+    amplitudes = np.array([float(np.max(np.abs(r.input))) for r in records])
     channels = list(residuals[0])
     rms = {c: np.array([root_mean_square(res[c]) for res in residuals]) for c in channels}
     nrmse = {

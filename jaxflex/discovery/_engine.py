@@ -441,7 +441,7 @@ class Engine:
 def simulate_all(universe: Universe, x: np.ndarray, records: Dataset) -> tuple[Outputs, ...]:
     params = {**universe.fixed, **dict(zip(universe.space.names, map(float, x), strict=True))}
     return tuple(
-        calibrated(universe.model, params, simulate(universe.model, params, r.torque, dt=r.dt))
+        calibrated(universe.model, params, simulate(universe.model, params, r.input, dt=r.dt))
         for r in records
     )
 

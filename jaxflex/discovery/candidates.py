@@ -10,7 +10,14 @@ from dataclasses import dataclass
 import equinox as eqx
 from jaxtyping import Array, Float
 
-from jaxflex.effects import Effect, SensorOffset, get_effect, library
+from jaxflex.effects import (
+    CALIBRATED_CHANNELS,
+    Effect,
+    SensorGain,
+    SensorOffset,
+    get_effect,
+    library,
+)
 from jaxflex.effects._base import Structure
 from jaxflex.parameters import ParameterSpec, Params
 
@@ -120,12 +127,14 @@ def default_candidates(channels: Iterable[str] | None = None) -> list[str]:
     to test it on a record whose reading at rest is not zero.
     """
     wanted = None if channels is None else set(channels)
-    return [
+    names = [
         e.name
         for e in library()
         if not isinstance(e, SensorOffset)
         and (wanted is None or getattr(e, "channel", None) in wanted | {None})
     ]
+    own = [c for c in channels or () if c not in CALIBRATED_CHANNELS]  # a rig's sensor channels
+    return names + [f"{SensorGain.key}:{c}" for c in own]
 
 
 def candidate_set(

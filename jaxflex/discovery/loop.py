@@ -22,7 +22,6 @@ from jaxflex.diagnosis import (
     diagnose,
     noise_levels,
 )
-from jaxflex.diagnosis.noise import CHANNELS
 from jaxflex.discovery._confirm import confirm, profile_scan
 from jaxflex.discovery._engine import Engine
 from jaxflex.discovery.candidates import Candidate, candidate_set, parameter_names
@@ -32,7 +31,7 @@ from jaxflex.discovery.report import Confirmation, DiscoveryFit, DiscoveryReport
 from jaxflex.discovery.scores import ALPHA, ScoreResult
 from jaxflex.effects import Effect
 from jaxflex.model import Model
-from jaxflex.objective import as_dataset, check_channels, check_weights
+from jaxflex.objective import as_dataset, check_channels, check_weights, fitted_channels
 from jaxflex.simulation import Outputs
 
 MIN_EXPLAINED = 0.9
@@ -104,10 +103,10 @@ def _rigid_step(engine: Engine, estimate, records: Dataset, holdout: Dataset | N
     from jaxflex.rigid import rigid_simulate
 
     length = engine.universe.base.testbed.length
-    preds = tuple(rigid_simulate(estimate, r.torque, r.dt, length=length) for r in records)
+    preds = tuple(rigid_simulate(estimate, r.input, r.dt, length=length) for r in records)
     held = None
     if holdout is not None:
-        held = [rigid_simulate(estimate, r.torque, r.dt, length=length) for r in holdout]
+        held = [rigid_simulate(estimate, r.input, r.dt, length=length) for r in holdout]
     nrmse, frf, held = _metrics(records, preds, holdout, held, channels, t_end)
     params = {"J_tot": estimate.J_tot, "b_v": estimate.b_v, "tau_c": estimate.tau_c}
     fit = DiscoveryFit(model=None, params=params, cost=engine.prediction_cost(preds),
@@ -162,9 +161,9 @@ def _initial_params(records: Dataset, model: Model, initial: Any, budget: tuple[
     return full_params(model, fit)
 
 
-def _channels(records: Dataset, channels: Sequence[str]) -> tuple[str, ...]:
-    """``channels`` validated: distinct simulator outputs that every record measures."""
-    channels = check_channels(channels)
+def _channels(records: Dataset, channels: Sequence[str], model: Model) -> tuple[str, ...]:
+    """``channels`` validated: distinct outputs or sensor channels that every record measures."""
+    channels = check_channels(channels, model)
     for c in channels:
         for r in records:
             if c not in r.columns:
@@ -193,7 +192,7 @@ def discover(
     bounds: Mapping[str, tuple[float, float]] | None = None,
     fixed: Mapping[str, float] | None = None,
     weights: Mapping[str, float] | None = None,
-    channels: Sequence[str] = CHANNELS,
+    channels: Sequence[str] | None = None,
     t_end: float | None = DEFAULT_T_END,
     max_confirm: int = MAX_CONFIRM,
 ) -> DiscoveryReport:
@@ -220,11 +219,10 @@ def discover(
     with noise levels: the tests assume the weighted residuals are unit white noise, so weights
     other than 0 and 1 change the tests' level.
 
-    ``channels`` are the simulator outputs the records measure and the fits use, as in
-    ``identify`` (an arm's sensors give them: :func:`jaxflex.measured.fit_channels`, e.g.
-    ``("joint_angle", "root_strain")`` for an encoder and a root strain gauge); residuals,
-    noise levels, diagnostics and the report are per channel, and what the records do not
-    measure is not fitted. The steps' NRMSE covers the first ``t_end`` seconds of each record
+    ``channels`` are the outputs or sensor channels every record (and held-out record) measures
+    and the fits use (default: the rig's sensor channels that they all hold, or joint angle and
+    tip acceleration for a rig without sensors); residuals, noise levels, diagnostics and the
+    report are per channel. The steps' NRMSE covers the first ``t_end`` seconds of each record
     (``None``: the whole record). Returns a :class:`DiscoveryReport`.
     """
     t0 = time.perf_counter()
@@ -243,12 +241,18 @@ def discover(
     if len(budget) != 2 or min(budget) < 1:
         raise ValueError(f"budget={budget!r} must be generations or (generations, population)")
     budget = (int(budget[0]), int(budget[1]))
-    channels = _channels(records, channels)
+    if channels is None:
+        every = [*records, *(holdout or ())]
+        channels = tuple(c for c in fitted_channels(records, model)
+                         if all(c in r.columns for r in every)) or fitted_channels(every, model)
+    fixed = {k: v for k, v in model.fixed_values.items() if k not in (bounds or {})} | dict(
+        fixed or {})
+    channels = _channels(records, channels, model)
     cands = tuple(
         c for c in candidate_set(candidates, channels) if c.name not in model.effect_names
     )
     if holdout is not None:
-        _channels(holdout, channels)
+        _channels(holdout, channels, model)
     fit_options = {"bounds": bounds, "fixed": fixed, "weights": weights, "noise": noise,
                    "channels": channels}
     # bad names or values: fail before any fit

@@ -48,6 +48,22 @@ EFFECTS: dict[str, type[Effect]] = _collect()
 """Effect name → class, for every effect in the library."""
 
 
+def register_effect(cls: type[Effect]) -> type[Effect]:
+    """Add a user-defined effect class to :data:`EFFECTS` under its ``name`` (also as a class
+    decorator), so that arm files, fit files and discovery can name it like the library's own.
+    """
+    if not (isinstance(cls, type) and issubclass(cls, Effect)):
+        raise TypeError(f"register_effect takes an Effect subclass, got {cls!r}")
+    name = cls.key if issubclass(cls, ChannelEffect) else cls.name
+    if not (isinstance(name, str) and name.isidentifier()):
+        raise ValueError(f"effect class {cls.__name__} needs a name (an identifier), "
+                         f"got {name!r}")
+    if EFFECTS.get(name, cls) is not cls:
+        raise ValueError(f"effect name {name!r} is taken by {EFFECTS[name].__name__}")
+    EFFECTS[name] = cls
+    return cls
+
+
 def get_effect(name: str, **kwargs) -> Effect:
     """An effect by name, built with ``kwargs`` (e.g. ``get_effect("payload", rotary=True)``);
     ``KEY:CHANNEL`` names a channel effect's channel (``get_effect("sensor_gain:root_strain")``)."""
@@ -78,7 +94,9 @@ def library() -> tuple[Effect, ...]:
 
 
 __all__ = [
+    "CALIBRATED_CHANNELS",
     "EFFECTS",
+    "ChannelEffect",
     "Delay",
     "Effect",
     "Gravity",
@@ -93,4 +111,5 @@ __all__ = [
     "get_effect",
     "joint_friction",
     "library",
+    "register_effect",
 ]

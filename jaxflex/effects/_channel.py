@@ -56,12 +56,10 @@ class ChannelEffect(Effect):
     parameters = _Parameters()  # type: ignore[assignment]
 
     def __check_init__(self) -> None:
-        if self.channel not in CHANNEL_UNITS:
+        if not (isinstance(self.channel, str) and self.channel.isidentifier()):
             raise ValueError(
-                f"{self.key}: channel {self.channel!r} is not an output the model fits; "
-                f"outputs: {list(CHANNEL_UNITS)} (a sensor of an arm file is fitted as one "
-                "of them: a root strain gauge as root_strain, a tip accelerometer as "
-                "tip_acceleration)"
+                f"{self.key}: channel {self.channel!r} must name a simulator output or a "
+                "sensor's channel (an identifier)"
             )
         for field in ("reference", "lower", "upper"):
             value = getattr(self, field, 0.0)
@@ -72,8 +70,9 @@ class ChannelEffect(Effect):
 
     @property
     def unit(self) -> str:
-        """The channel's unit."""
-        return CHANNEL_UNITS[self.channel]
+        """The channel's unit where jaxflex knows it (a simulator output), else empty: a
+        sensor's channel is in the sensor's own unit."""
+        return CHANNEL_UNITS.get(self.channel, "")
 
     def spec(self) -> ParameterSpec:
         """The effect's one parameter."""

@@ -47,6 +47,9 @@ class SensorOffset(ChannelEffect):
         super().__check_init__()
         if not (isinstance(self.bound, (int, float)) and self.bound >= 0):
             raise ValueError(f"{self.name}: bound={self.bound!r} must be a number >= 0")
+        if not self.bound and self.channel not in DEFAULT_BOUNDS:
+            raise ValueError(f"{self.name}: give its bound (the largest offset, in the "
+                             f"channel's unit): {self.channel!r} has no default")
 
     def spec(self) -> ParameterSpec:
         bound = self.bound or DEFAULT_BOUNDS[self.channel]

@@ -36,7 +36,7 @@ def plot_time(
     which: int | str = 0,
     *,
     simulated: Outputs | Record | None = None,
-    outputs: Sequence[str] = OUTPUT_COLUMNS,
+    outputs: Sequence[str] | None = None,
     figsize: tuple[float, float] = TIME_FIGSIZE,
     dpi: float = 100.0,
     title: str | None = None,
@@ -44,16 +44,22 @@ def plot_time(
     """Measured vs model for each output of one record, the residual (measured − model) below.
 
     ``source`` is a comparison (``which`` picks the record by name or position; the legend
-    quotes its NRMSE) or a measured record together with ``simulated`` outputs.
+    quotes its NRMSE; ``outputs`` default to its channels, in their units) or a measured record
+    together with ``simulated`` outputs (``outputs`` default to joint angle and tip
+    acceleration).
     """
+    units: dict[str, str] = {}
     if isinstance(source, Comparison):
         record, out, row = source.record(which), source.outputs(which), source[which]
+        outputs = source.channels if outputs is None else outputs
+        units = source.units
     elif isinstance(source, Record):
         if simulated is None:
             raise ValueError("plot_time(record, ...) needs the simulated outputs: simulated=...")
         record, out, row = source, simulated, None
     else:
         raise TypeError(f"plot_time expects a Comparison or a Record, got {type(source).__name__}")
+    outputs = OUTPUT_COLUMNS if outputs is None else outputs
     outputs = [outputs] if isinstance(outputs, str) else list(outputs)
     if not outputs:
         raise ValueError("outputs must name at least one output")
@@ -75,7 +81,7 @@ def plot_time(
                 f"simulated {name} has shape {model.shape} but record "
                 f"{record.name!r} has {measured.shape}"
             )
-        unit = record.units.get(name) or "-"
+        unit = units.get(name) or record.units.get(name) or "-"
         label = name.replace("_", " ")
         ax, ax_res = axes[2 * k, 0], axes[2 * k + 1, 0]
         model_label = (
@@ -107,7 +113,8 @@ def plot_frf(
     dpi: float = 100.0,
     title: str | None = None,
 ) -> Figure:
-    """FRF torque → tip acceleration: magnitude (dB) and phase, measured vs model.
+    """FRF input → link channel (torque → tip acceleration on the reference testbed):
+    magnitude (dB) and phase, measured vs model.
 
     ``source`` is a comparison (``which``: one record, several, or ``None`` for all) or a single
     :class:`~jaxflex.comparison.FRF`. Measured bins used by the FRF NRMSE are dots, bins left out
@@ -117,7 +124,9 @@ def plot_frf(
     the measured FRF peaks triangles. The frequency axis runs to ``f_max`` (default: the
     comparison's band, 15 Hz).
     """
+    path = ("torque", "tip_acceleration", {"torque": "N m", "tip_acceleration": "m s⁻²"})
     if isinstance(source, Comparison):
+        path = (source.input_name, source.link, source.units)
         keys = (
             range(len(source))
             if which is None
@@ -202,7 +211,9 @@ def plot_frf(
     levels = levels[np.isfinite(levels)]
     if levels.size:
         ax_mag.set_ylim(levels.min() - 10.0, levels.max() + 10.0)
-    ax_mag.set_ylabel("|H| (dB re 1 m s⁻² / N m)")
+    source_name, link, units = path
+    input_unit = {"torque": "N m", "current": "A", "voltage": "V"}.get(source_name, "unit")
+    ax_mag.set_ylabel(f"|H| (dB re 1 {units.get(link) or 'unit'} / {input_unit})")
     ax_mag.legend(
         loc="lower left", bbox_to_anchor=(0.0, 1.0), fontsize="small", frameon=False, ncols=3
     )
@@ -212,7 +223,8 @@ def plot_frf(
     ax_phase.set_xlabel("frequency (Hz)")
     ax_phase.set_xlim(0.0, f_max)
     label = f" — {curves[0][0]}" if single and curves[0][0] else ""
-    fig.suptitle(title or f"FRF torque → tip acceleration (H1){label}")
+    arrow = f"{source_name} → {link.replace('_', ' ')}"
+    fig.suptitle(title or f"FRF {arrow} (H1){label}")
     return fig
 
 

@@ -1,29 +1,53 @@
-"""Figure of a record (measured or simulated): torque, joint angle and tip acceleration."""
+"""Figure of a record (measured or simulated): its input and its output channels."""
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 
 import numpy as np
 from matplotlib.figure import Figure
 
-from jaxflex.data import Record
+from jaxflex.data import OUTPUT_COLUMNS, Record
 from jaxflex.plots._style import new_figure
 
 
-def plot_record(records: Record | Sequence[Record], *, figsize=(8.0, 6.5), dpi=100.0) -> Figure:
-    """Torque, joint angle (degrees) and tip acceleration of one or several records."""
+def plot_record(
+    records: Record | Sequence[Record],
+    *,
+    channels: Sequence[str] | None = None,
+    units: Mapping[str, str] | None = None,
+    figsize=(8.0, 6.5),
+    dpi=100.0,
+) -> Figure:
+    """The input and each channel of one or several records, one panel each.
+
+    ``channels`` default to the joint angle (in degrees) and tip acceleration of the reference
+    format, or, for a record as a rig logs it, ``units``' channels (each in the unit given
+    there, e.g. a sensor's own).
+    """
     records = [records] if isinstance(records, Record) else list(records)
-    fig, axes = new_figure(3, 1, figsize=figsize, dpi=dpi, sharex=True)
-    ax_tau, ax_angle, ax_acc = axes[:, 0]
+    units = dict(units or {})
+    first = records[0]
+    if channels is None:
+        channels = list(units) or [c for c in OUTPUT_COLUMNS if c in first.columns]
+    fig, axes = new_figure(1 + len(channels), 1, figsize=figsize, dpi=dpi, sharex=True)
+    ax_input, *ax_channels = axes[:, 0]
     for record in records:
-        ax_tau.plot(record.time, record.torque, label=record.name)
-        ax_angle.plot(record.time, np.degrees(record.joint_angle), label=record.name)
-        ax_acc.plot(record.time, record.tip_acceleration, linewidth=0.8, label=record.name)
-    ax_tau.set_ylabel("torque [N m]")
-    ax_angle.set_ylabel("joint angle [deg]")
-    ax_acc.set_ylabel("tip acceleration [m/s²]")
-    ax_acc.set_xlabel("time [s]")
+        ax_input.plot(record.time, record.input, label=record.name)
+        for ax, c in zip(ax_channels, channels, strict=True):
+            y = record.channel(c)
+            ax.plot(record.time, np.degrees(y) if _in_degrees(c, units) else y,
+                    linewidth=0.8, label=record.name)
+    ax_input.set_ylabel(f"{first.input_name} [{first.units[first.input_name] or 'unit'}]")
+    for ax, c in zip(ax_channels, channels, strict=True):
+        unit = "deg" if _in_degrees(c, units) else units.get(c) or first.units.get(c) or "-"
+        ax.set_ylabel(f"{c.replace('_', ' ')} [{unit}]")
+    axes[-1, 0].set_xlabel("time [s]")
     if len(records) > 1:
-        ax_tau.legend(loc="upper right", frameon=False)
+        ax_input.legend(loc="upper right", frameon=False)
     return fig
+
+
+def _in_degrees(channel: str, units: Mapping[str, str]) -> bool:
+    """The reference format's joint angle is shown in degrees."""
+    return channel == "joint_angle" and channel not in units
