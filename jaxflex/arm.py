@@ -71,6 +71,10 @@ from jaxflex.sensors import SENSORS, Sensor
 from jaxflex.testbed import Testbed
 
 _BASE = {spec.name: spec for spec in BASE_PARAMETERS}
+MAX_ELEMENTS = 1000
+"""More beam elements than this is a typing error, not a model."""
+MAX_SUBSTEPS = 64
+"""More integrator steps per sample than this is a typing error (the default is 2)."""
 
 
 class ArmError(ValueError):
@@ -102,9 +106,10 @@ def arm_from_dict(data: Mapping[str, Any], where: str = "arm") -> Model:
     clamp_offset = link.number("clamp_offset", 0.0, minimum=0.0)
     link.done()
     simulation = top.table("simulation", required=False)
-    n_elements = simulation.integer("n_elements", 10)
-    n_substeps = simulation.integer("n_substeps", 2)
-    n_modes = simulation.integer("n_modes") if "n_modes" in simulation.data else None
+    n_elements = simulation.integer("n_elements", 10, maximum=MAX_ELEMENTS)
+    n_substeps = simulation.integer("n_substeps", 2, maximum=MAX_SUBSTEPS)
+    n_modes = (simulation.integer("n_modes", maximum=2 * n_elements)
+               if "n_modes" in simulation.data else None)
     omega_s = simulation.number("friction_smoothing", Testbed.omega_s)
     simulation.done()
     sampling = top.table("sampling", required=False)
@@ -424,10 +429,13 @@ class _Table:
             raise self._wrong(name, need, value)
         return value
 
-    def integer(self, name: str, default: Any = _MISSING) -> int:
+    def integer(self, name: str, default: Any = _MISSING, *, maximum: int | None = None) -> int:
+        """A whole number >= 1 (and <= ``maximum``: a larger one is a typing error)."""
         value = self._get(name, default)
-        if isinstance(value, bool) or not isinstance(value, int) or value < 1:
-            raise self._wrong(name, "a whole number >= 1", value)
+        if isinstance(value, bool) or not isinstance(value, int) or value < 1 or (
+                maximum is not None and value > maximum):
+            need = "a whole number >= 1" if maximum is None else f"a whole number in [1, {maximum}]"
+            raise self._wrong(name, need, value)
         return value
 
     def boolean(self, name: str, default: Any = _MISSING) -> bool:

@@ -30,6 +30,7 @@ import numpy as np
 from jaxtyping import ArrayLike
 
 from jaxflex._io import provenance, to_jsonable, write_json
+from jaxflex.arm import MAX_ELEMENTS
 from jaxflex.diagnosis import Noise, noise_levels
 from jaxflex.evolve import STRATEGIES, get_strategy, run
 from jaxflex.model import Model
@@ -268,8 +269,6 @@ class Fit:
 # ------------------------------------------------------------------------------ fit file schema
 
 _REFINEMENT_TIMES = ("wall_time", "compile_time")
-MAX_ELEMENTS = 1000
-"""A fit file asking for a beam of more elements is refused (a typing error, not a model)."""
 
 
 class _Invalid(ValueError):

@@ -205,7 +205,7 @@ def estimate_rigid(
         rigid_regression(r, cutoff_hz=cutoff_hz, deadband=deadband, guard=guard) for r in records
     ]
     A = np.concatenate([r.regressor for r in rows])
-    y = np.concatenate([r.input for r in rows])
+    y = np.concatenate([r.torque for r in rows])
     w = np.concatenate([r.weight * u for r, u in zip(rows, user_weights, strict=True)])
     n_cols = 4 if offset else 3
     A = A[:, :n_cols]

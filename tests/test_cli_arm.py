@@ -21,16 +21,21 @@ def rotflex_csv(tmp_path_factory):
 
 
 def test_identify_with_an_arm_then_validate_every_record(rotflex_csv, tmp_path, capsys):
-    fit = tmp_path / "fit.json"
-    args = ["identify", str(rotflex_csv / "square_wave.csv"), "--arm",
-            str(ARMS / "quanser_rotflex.toml"), "--generations", "2", "--population", "8",
-            "--no-refine", "--quiet", "--out", str(fit)]
+    fit, arm = tmp_path / "fit.json", tmp_path / "my_rig.toml"
+    arm.write_text((ARMS / "quanser_rotflex.toml").read_text())
+    args = ["identify", str(rotflex_csv / "square_wave.csv"), "--arm", str(arm),
+            "--generations", "2", "--population", "8", "--no-refine", "--quiet",
+            "--out", str(fit)]
     assert main(args) == 0
     saved = json.loads(fit.read_text())
-    assert saved["settings"]["arm"] == str((ARMS / "quanser_rotflex.toml").resolve())
-    table = tmp_path / "table.json"
+    assert saved["settings"]["arm"] == str(arm.resolve())
+    assert saved["model_description"]["drive"]["type"] == "voltage"  # the rig, whole
+    arm.write_text(arm.read_text().replace("7850.0", "2700.0"))  # edited, then gone:
+    arm.unlink()  # the fit validates on the rig it carries, with figures
+    table, report = tmp_path / "table.json", tmp_path / "report"
     data = [str(rotflex_csv / "square_wave.csv"), str(rotflex_csv / "random_985.csv")]
-    assert main(["validate", *data, "--fit", str(fit), "--json", str(table)]) == 0
+    assert main(["validate", *data, "--fit", str(fit), "--json", str(table),
+                 "--report", str(report)]) == 0
     rows = json.loads(table.read_text())["records"]
     assert [(r["name"], r["role"]) for r in rows] == [
         ("square_wave", "fit"), ("random_985", "held-out")
@@ -38,6 +43,11 @@ def test_identify_with_an_arm_then_validate_every_record(rotflex_csv, tmp_path, 
     for row in rows:
         assert set(row["nrmse"]) == {"joint_angle", "deflection_angle"}
         assert all(value > 0 for value in row["nrmse"].values())
+    figures = sorted(p.name for p in report.iterdir())
+    assert figures == ["comparison.json", "frf.png", "random_985_time.png", "square_wave_time.png",
+                       "table.txt"]
+    compared = json.loads((report / "comparison.json").read_text())
+    assert compared["channels"] == {"joint_angle": "rad", "deflection_angle": "rad"}
     capsys.readouterr()
     window = ["validate", data[1], "--fit", str(fit), "--window", "10:20"]
     assert main(window) == 2
@@ -50,12 +60,10 @@ def test_identify_with_an_arm_then_validate_every_record(rotflex_csv, tmp_path, 
 def test_arm_options_are_checked(rotflex_csv, tmp_path, capsys):
     data = str(rotflex_csv / "square_wave.csv")
     out = str(tmp_path / "fit.json")
-    assert main(["identify", data, "--window", "0:1", "--out", out]) == 2
-    assert "--window needs --arm" in capsys.readouterr().err
     bad = tmp_path / "arm.toml"
     bad.write_text((ARMS / "quanser_rotflex.toml").read_text().replace("width =", "widht ="))
     assert main(["identify", data, "--arm", str(bad), "--out", out]) == 2
     assert f"{bad}: link.width: missing value" in capsys.readouterr().err
     reference = str(ARMS / "reference.toml")
     assert main(["identify", data, "--arm", reference, "--out", out]) == 2
-    assert "logs 'voltage' but arm 'reference' has a torque drive" in capsys.readouterr().err
+    assert "logs 'voltage' but rig 'reference' has a torque drive" in capsys.readouterr().err

@@ -1,4 +1,4 @@
-"""``--arm`` on simulate, study, discover and design; a fit's arm carries to later commands."""
+"""``--arm`` on simulate, study, discover and design; a fit's rig carries to later commands."""
 
 import json
 import math
@@ -57,8 +57,8 @@ def test_simulate_with_an_arm_logs_its_drive_and_sensors(rotflex_log):
     counts = record.joint_angle / step
     np.testing.assert_allclose(counts, np.round(counts), atol=1e-6)
     assert np.ptp(record.joint_angle) > 100 * step  # the arm moved
-    ready = model_record(ROTFLEX, record)  # and the log maps back onto the model
-    assert set(ready.columns) == {"time", "torque", "joint_angle", "root_strain"}
+    ready = model_record(ROTFLEX, record)  # and the log is what the model reads
+    assert set(ready.columns) == {"time", "voltage", "joint_angle", "deflection_angle"}
 
 
 def test_simulate_with_an_arm_refuses_link_settings(tmp_path, capsys):
@@ -91,13 +91,6 @@ def test_outputs_are_checked_before_the_arm_is_used(tmp_path, rotflex_log, capsy
     assert taken.read_text() == "{}" and record.read_text() == ""
 
 
-def test_window_needs_an_arm(tmp_path, reference_log, capsys):
-    for command in (["study", str(reference_log), "--out", str(tmp_path / "s.json")],
-                    ["discover", str(reference_log)]):
-        assert main([*command, "--window", "0:1"]) == 2
-        assert "--window needs --arm (or a fit made with --arm)" in capsys.readouterr().err
-
-
 @pytest.mark.slow  # about 25 s: compiling the search
 def test_study_with_an_arm_fits_the_sensor_channels(tmp_path, rotflex_log):
     out = tmp_path / "study.json"
@@ -120,8 +113,8 @@ def _offset_log(folder, tau_0: float):
     pulse = (t - 0.3) % 0.5 < 0.1
     sign = np.where((t - 0.3) // 0.5 % 2 == 0, 1.0, -1.0)
     volts = np.where(t < 0.3, 0.0, 2.0 * pulse * sign)
-    record = logged_record(ROTFLEX, params | {"tau_0": tau_0}, t, volts,
-                           effects=(get_effect("torque_offset"),), seed=4)
+    record = logged_record(ROTFLEX.with_effects(get_effect("torque_offset")),
+                           params | {"tau_0": tau_0}, t, volts, seed=4)
     assert np.max(np.abs(record.joint_angle)) < np.radians(20.0)
     columns = ["voltage", "joint_angle", "deflection_angle"]
     path = folder / "offset.csv"
@@ -144,37 +137,38 @@ def test_discover_names_a_torque_offset_on_encoder_and_strain_gauge(tmp_path, ca
     assert main(["discover", str(log), "--arm", ROTFLEX_FILE, "--initial", str(start),
                  "--effects", "torque_offset,gravity", "--max-steps", "1",
                  "--json", str(out)]) == 0
-    assert "strain NRMSE %" in capsys.readouterr().out
+    assert "deflection_angle NRMSE %" in capsys.readouterr().out
     result = json.loads(out.read_text())
-    assert result["settings"]["channels"] == ["joint_angle", "root_strain"]
+    assert result["settings"]["channels"] == ["joint_angle", "deflection_angle"]
     noise = result["settings"]["noise"]
     assert noise["joint_angle"]["step"] == pytest.approx(2 * math.pi / 4096)
-    assert noise["root_strain"]["kind"] == "quantised"
+    assert noise["deflection_angle"]["kind"] == "quantised"
+    assert noise["deflection_angle"]["step"] == 6.4e-5
     base, added = result["steps"]
     assert added["added"] == "torque_offset"
     assert added["params"]["tau_0"] == pytest.approx(-0.008, rel=0.05)
     assert "phi" not in added["params"]
     ranking = {r["effect"]: r["statistic"] for r in result["ranking"][0]}
     assert ranking["torque_offset"] > 3 * ranking["gravity"]
-    for channel in ("joint_angle", "root_strain"):
+    for channel in ("joint_angle", "deflection_angle"):
         assert added["nrmse"][channel] < 0.1 * base["nrmse"][channel]
 
 
 @pytest.mark.slow  # about 30 s: compiling the search
-def test_a_fit_carries_its_arm_to_discover(tmp_path, capsys):
+def test_a_fit_carries_its_rig_to_discover(tmp_path, capsys):
     log, fit = tmp_path / "log.csv", tmp_path / "fit.json"
-    assert main(["simulate", "--arm", REFERENCE, "--input", "pulse", "--duration", "0.4",
+    assert main(["simulate", "--arm", ROTFLEX_FILE, "--input", "pulse", "--duration", "0.4",
                  "--rest", "0.1", "--out", str(log)]) == 0
-    assert main(["identify", str(log), "--arm", REFERENCE, *TINY, "--out", str(fit)]) == 0
+    assert main(["identify", str(log), "--arm", ROTFLEX_FILE, *TINY, "--out", str(fit)]) == 0
     capsys.readouterr()
-    assert main(["discover", str(log), "--initial", str(fit), "--arm", ROTFLEX_FILE]) == 2
-    assert "the fit was made with the arm" in capsys.readouterr().err
-    # the fit's arm (a torque drive) meets a voltage log: the arm was used without --arm
-    rotflex = tmp_path / "v.csv"
-    assert main(["simulate", "--arm", ROTFLEX_FILE, "--input", "pulse", "--duration", "0.5",
-                 "--rest", "0.1", "--out", str(rotflex)]) == 0
-    assert main(["discover", str(rotflex), "--initial", str(fit), "--window", "0:0.4"]) == 2
-    assert "logs 'voltage' but arm 'reference' has a torque drive" in capsys.readouterr().err
+    assert main(["discover", str(log), "--initial", str(fit), "--arm", REFERENCE]) == 2
+    assert "the fit was made with another rig ('quanser_rotflex')" in capsys.readouterr().err
+    # the fit's rig (a voltage drive) meets a torque log: the rig was used without --arm
+    torque = tmp_path / "t.csv"
+    assert main(["simulate", "--input", "pulse", "--duration", "0.5", "--out", str(torque)]) == 0
+    assert main(["discover", str(torque), "--initial", str(fit), "--window", "0:0.4"]) == 2
+    err = capsys.readouterr().err
+    assert "logs 'torque' but rig 'quanser_rotflex' has a voltage drive" in err
 
 
 @pytest.mark.slow  # about 35 s: compiling the Fisher information
@@ -207,17 +201,17 @@ def test_two_link_records_are_refused(tmp_path, reference_log, capsys):
 @pytest.mark.slow  # about 40 s: compiling the search and the refinement
 def test_identify_names_a_strain_gauge_calibrated_wrong(tmp_path):
     """The rig's gauge reads 1.25 times what the arm file says: identify with the arm and
-    --effect sensor_gain:root_strain gives gain_root_strain = 1.25 (motion parameters held at
-    their truth)."""
+    --effect sensor_gain:deflection_angle gives gain_deflection_angle = 1.25 (motion parameters
+    held at their truth)."""
     true_arm = tmp_path / "true.toml"
     true_arm.write_text(ARMS.joinpath("quanser_rotflex.toml").read_text().replace(
         'calibration = "deflection_angle"', 'calibration = "deflection_angle"\ngain = 1.25'))
     log, fit = tmp_path / "log.csv", tmp_path / "fit.json"
     assert main(["simulate", "--arm", str(true_arm), "--input", "triangular", "--duration", "1",
                  "--rest", "0.1", "--out", str(log)]) == 0
-    fixed = [f"--fix={k}={float(v)!r}" for k, v in ROTFLEX.reference_parameters().items()]
-    assert main(["identify", str(log), "--arm", ROTFLEX_FILE, "--effect", "sensor_gain:root_strain",
-                 *fixed, "--generations", "2", "--population", "8", "--quiet",
-                 "--out", str(fit)]) == 0
-    gain = json.loads(fit.read_text())["params"]["gain_root_strain"]
+    fixed = [f"--fix={k}={float(v)!r}" for k, v in ROTFLEX.space.reference().items()]
+    assert main(["identify", str(log), "--arm", ROTFLEX_FILE, "--effect",
+                 "sensor_gain:deflection_angle", *fixed, "--generations", "2", "--population",
+                 "8", "--quiet", "--out", str(fit)]) == 0
+    gain = json.loads(fit.read_text())["params"]["gain_deflection_angle"]
     assert gain == pytest.approx(1.25, rel=1e-6)

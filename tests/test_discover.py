@@ -548,8 +548,8 @@ def test_a_rigid_estimate_beyond_a_bound_seeds_the_search_on_it():
 
 @pytest.mark.slow  # about 80 s on a busy 2-core machine (DE 10 x 20, one step, 60 s held out)
 def test_discover_on_the_rotflex_square_wave_names_the_torque_offset():
-    """The real ROTFLEX square wave, held out on run 985, through the arm's sensors (encoder and
-    root strain gauge as joint_angle and root_strain, their quanta as noise model). Measured:
+    """The real ROTFLEX square wave, held out on run 985, through the rig's sensors (encoder and
+    root strain gauge in their own units, their quanta as noise model). Measured:
     the base model fits at 37.9 % (angle) / 10.5 % (strain) NRMSE on the discovery likelihood
     and drifts to 1142 % / 26.1 % over the 60 s held out; torque_offset ranks first (gravity
     second) and its refit, tau_0 = -0.0070 N m, brings the fit to 7.5 % / 8.9 % and the held-out
@@ -559,22 +559,22 @@ def test_discover_on_the_rotflex_square_wave_names_the_torque_offset():
 
     from jaxflex import datasets
     from jaxflex.arm import load_arm
-    from jaxflex.measured import fit_channels, fit_noise, model_record
+    from jaxflex.measured import fit_noise, model_record
 
     runs = _or_skip(datasets.load, "quanser_rotflex", REAL_DATA_DIR)
     arm = load_arm(ARMS / "quanser_rotflex.toml")
     square = runs["square_wave"]
     report = discover(
         [model_record(arm, square)], holdout=[model_record(arm, runs["random_985"])],
-        model=arm.model(), channels=fit_channels(arm, square), noise=fit_noise(arm, square),
-        t_end=None, budget=(10, 20), max_steps=1, seed=0,
+        model=arm, noise=fit_noise(arm, square), t_end=None, budget=(10, 20), max_steps=1,
+        seed=0,
     )
-    assert report.channels == ("joint_angle", "root_strain")
+    assert report.channels == ("joint_angle", "deflection_angle")
     assert report.added == ("torque_offset",)
     assert [r.effect for r in report.rankings[0][:2]] == ["torque_offset", "gravity"]
     base, offset = report.steps
     assert -0.0085 < offset.fit.params["tau_0"] < -0.0055
     assert offset.nrmse["joint_angle"] < 0.25 * base.nrmse["joint_angle"]
-    assert offset.nrmse["root_strain"] < 0.9 * base.nrmse["root_strain"]
+    assert offset.nrmse["deflection_angle"] < 0.9 * base.nrmse["deflection_angle"]
     held_base, held = (s.holdout["relative_error"]["joint_angle"] for s in report.steps)
     assert held < 0.15 * held_base

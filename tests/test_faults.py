@@ -343,8 +343,8 @@ def test_8_output_directory_is_refused(tmp_path, capsys, overwrite):
     (lambda d: d | {"params": d["params"] | {"E": None}},
      "field 'params.E': expected a finite number, got null"),
     (lambda d: d | {"model_description": d["model_description"] | {
-        "testbed": d["model_description"]["testbed"] | {"n_elements": 10**9}}},
-     "field 'model_description.testbed.n_elements': expected a whole number in [1, 1000]"),
+        "simulation": d["model_description"]["simulation"] | {"n_elements": 10**9}}},
+     "field 'model_description': simulation.n_elements: expected a whole number in [1, 1000]"),
 ])
 @pytest.mark.parametrize("command", ["validate", "discover"])
 def test_9_hand_edited_fit_names_the_field(tmp_path, capsys, edit, field, command):

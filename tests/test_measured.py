@@ -1,6 +1,6 @@
-"""Records as they come: the drive's input column, sensor channels, windows and rest."""
+"""Records as they come: the drive's input column, sensor channels in their own units,
+windows and rest."""
 
-import dataclasses
 import math
 
 import numpy as np
@@ -9,11 +9,12 @@ import scipy.linalg
 from test_arm import ARMS
 from test_datasets import REAL_DATA_DIR
 
-from jaxflex import datasets, get_effect, identify, simulate
+from jaxflex import Model, datasets, get_effect, identify, simulate
 from jaxflex.arm import load_arm
 from jaxflex.data import Record
-from jaxflex.measured import fit_channels, fit_noise, model_record, validate
-from jaxflex.sensors import readings
+from jaxflex.measured import fit_noise, model_record, validate
+from jaxflex.objective import fitted_channels
+from jaxflex.sensors import Accelerometer, Encoder, readings
 
 ROTFLEX = load_arm(ARMS / "quanser_rotflex.toml")
 TRUE = {"E": 1.6e11, "J_h": 0.0024, "b_v": 0.004, "tau_c": 0.02, "alpha": 0.05, "beta": 3e-4}
@@ -25,10 +26,9 @@ def _logged(start: float = 3.7, seed: int = 0) -> tuple[Record, dict]:
     dt = ROTFLEX.testbed.dt
     t = np.arange(0.0, 3.0, dt)
     volts = np.where(t < 0.5, 0.0, 3.0 * np.sign(np.sin(2 * np.pi * 0.8 * (t - 0.5))))
-    model = ROTFLEX.model()
-    outputs = simulate(model, TRUE, volts, dt)
+    outputs = simulate(ROTFLEX, TRUE, volts, dt)
     rng = np.random.default_rng(seed)
-    clean = {k: np.asarray(v) for k, v in readings(ROTFLEX.sensors, model, outputs).items()}
+    clean = {k: np.asarray(v) for k, v in readings(ROTFLEX, outputs).items()}
     logged = {s.channel: s.observe(clean[s.channel], rng) for s in ROTFLEX.sensors}
     record = Record(
         time=start + t,
@@ -39,37 +39,36 @@ def _logged(start: float = 3.7, seed: int = 0) -> tuple[Record, dict]:
     return record, {"outputs": outputs, "clean": clean}
 
 
-def test_a_logged_record_becomes_what_the_simulator_outputs():
+def test_a_logged_record_keeps_its_input_and_its_sensors_readings_re_zeroed_at_rest():
     record, truth = _logged()
     ready = model_record(ROTFLEX, record)
     assert ready.time[0] == 0.0 and ready.n_samples == record.n_samples
-    np.testing.assert_array_equal(ready.torque, record.channel("voltage"))
-    assert fit_channels(ROTFLEX, record) == ("joint_angle", "root_strain")
-    step = ROTFLEX.sensor("joint_angle").resolution
-    assert np.max(np.abs(ready.joint_angle - truth["outputs"].joint_angle)) <= step / 2 + 1e-12
-    gauge = ROTFLEX.sensor("deflection_angle")
-    factor = gauge.scale(ROTFLEX.model()) / (0.5 * ROTFLEX.testbed.thickness)
-    error = ready.channel("root_strain") - np.asarray(truth["outputs"].root_strain)
-    assert np.max(np.abs(error)) <= (gauge.resolution / 2) / factor * (1 + 1e-9)
-    assert "deflection_angle -> root_strain" in ready.metadata["sensors"]
+    assert ready.input_name == "voltage" and ready.torque is None
+    np.testing.assert_array_equal(ready.input, record.channel("voltage"))
+    assert fitted_channels([record], ROTFLEX) == ("joint_angle", "deflection_angle")
+    assert set(ready.columns) == {"time", "voltage", "joint_angle", "deflection_angle"}
+    for channel in ("joint_angle", "deflection_angle"):  # each in its own unit, within a step
+        step = ROTFLEX.sensor(channel).resolution
+        error = ready.channel(channel) - truth["clean"][channel]
+        assert np.max(np.abs(error)) <= step / 2 * (1 + 1e-9) + 1e-15, channel
+    assert ready.metadata["sensors"] == "joint_angle, deflection_angle"
 
 
-def test_sensor_noise_models_in_the_units_of_the_fitted_outputs():
-    """The encoder's count and the gauge's quantum (a deflection angle, read as root strain
-    through ``α = L/3 · w'' = (2L/3h) · ε`` at the clamp) become quantised noise levels."""
+def test_sensor_noise_models_in_the_sensors_own_units():
+    """The encoder's count and the gauge's quantum (6.4e-5 rad of deflection angle) become
+    quantised noise levels; a stated white noise adds to the quantisation."""
     record, _ = _logged()
     levels = fit_noise(ROTFLEX, record)
     assert levels["joint_angle"].kind == "quantised"
     assert levels["joint_angle"].step == 2 * np.pi / 4096
-    tb = ROTFLEX.testbed
-    assert levels["root_strain"].step == pytest.approx(6.4e-5 * 3 * tb.thickness / (2 * tb.length),
-                                                       rel=1e-12)
-    noisy = dataclasses.replace(ROTFLEX, sensors=(
-        ROTFLEX.sensors[0], dataclasses.replace(ROTFLEX.sensors[1], noise=1e-4)))
-    white = fit_noise(noisy, record)["root_strain"]
+    assert levels["deflection_angle"].step == 6.4e-5
+    gauge = ROTFLEX.sensors[1]
+    noisy = ROTFLEX.replace(sensors=(ROTFLEX.sensors[0], gauge.__class__(
+        channel=gauge.channel, calibration=gauge.calibration, resolution=gauge.resolution,
+        noise=1e-4)))
+    white = fit_noise(noisy, record)["deflection_angle"]
     assert white.kind == "white"
-    assert white.sigma == pytest.approx(math.hypot(1e-4, 6.4e-5 / math.sqrt(12)) * 3
-                                        * tb.thickness / (2 * tb.length), rel=1e-12)
+    assert white.sigma == pytest.approx(math.hypot(1e-4, 6.4e-5 / math.sqrt(12)), rel=1e-12)
 
 
 def test_validate_scores_every_sensor_channel_over_the_whole_record():
@@ -96,19 +95,19 @@ def test_inputs_and_channels_that_do_not_fit_the_arm_are_named():
     record, _ = _logged()
     volts, angle = record.channel("voltage"), record.joint_angle
     as_torque = Record(time=record.time, torque=volts, joint_angle=angle)
-    with pytest.raises(ValueError, match="logs 'torque' but arm 'quanser_rotflex' has a voltage"):
+    with pytest.raises(ValueError, match="logs 'torque' but rig 'quanser_rotflex' has a voltage"):
         model_record(ROTFLEX, as_torque)
     only_reference = Record(
         time=record.time,
         extras={"voltage": record.channel("voltage"), "reference": record.channel("reference")},
         name="r",
     )
-    with pytest.raises(ValueError, match="record 'r' holds none of arm 'quanser_rotflex'"):
+    with pytest.raises(ValueError, match="record 'r' holds none of rig 'quanser_rotflex'"):
         model_record(ROTFLEX, only_reference)
 
 
 def _clamped_frequencies(params) -> np.ndarray:
-    structure = ROTFLEX.model().structure({k: np.float64(v) for k, v in params.items()})
+    structure = ROTFLEX.structure({k: np.float64(v) for k, v in params.items()})
     mass, stiffness = np.asarray(structure.mass)[1:, 1:], np.asarray(structure.stiffness)[1:, 1:]
     return np.sqrt(scipy.linalg.eigh(stiffness, mass, eigvals_only=True)) / (2 * np.pi)
 
@@ -123,13 +122,11 @@ def test_rotflex_square_wave_fit_validates_on_run_985():
     except datasets.DataUnavailable as err:
         pytest.skip(f"real-rig data unavailable: JAXFLEX_DATA_DIR unset and no network ({err})")
     square, held_out = records["square_wave"], records["random_985"]
-    offset = (get_effect("torque_offset"),)
-    fit = identify(
-        model_record(ROTFLEX, square), ROTFLEX.model(*offset), generations=10, population=20,
-        seed=0, channels=fit_channels(ROTFLEX, square), intervals=False,
-    )
+    model = ROTFLEX.with_effects(get_effect("torque_offset"))
+    fit = identify(model_record(model, square), model, generations=10, population=20, seed=0,
+                   intervals=False)
     params = {k: float(v) for k, v in fit.params.items()}
-    scores = validate(ROTFLEX, params, [square, held_out], effects=offset)
+    scores = validate(model, params, [square, held_out])
     assert scores["square_wave"]["joint_angle"] < 6.0
     assert scores["square_wave"]["deflection_angle"] < 10.0
     assert scores["random_985"]["joint_angle"] < 165.0
@@ -144,10 +141,8 @@ def test_a_rotflex_like_log_gives_back_its_parameters():
     """Voltage in, quantised encoder and strain gauge out, no accelerometer: DE + LM on the
     logged record recovers the truth; what the data cannot pin shows in the intervals."""
     record, _ = _logged(seed=2)
-    fit = identify(
-        model_record(ROTFLEX, record), ROTFLEX.model(), generations=12, population=24, seed=1,
-        channels=fit_channels(ROTFLEX, record),
-    )
+    fit = identify(model_record(ROTFLEX, record), ROTFLEX, generations=12, population=24,
+                   seed=1)
     for name in ("E", "J_h", "b_v", "tau_c"):
         assert fit.params[name] == pytest.approx(TRUE[name], rel=0.05), (name, fit.summary())
     for name in ("alpha", "beta"):
@@ -155,14 +150,18 @@ def test_a_rotflex_like_log_gives_back_its_parameters():
         assert close or name in fit.poorly_identifiable, (name, fit.summary())
 
 
-def test_a_tip_accelerometer_maps_onto_the_tip_acceleration_column():
-    arm = load_arm(ARMS / "reference.toml")
-    t = np.arange(0.0, 0.6, arm.testbed.dt)
+def test_sensors_named_as_the_reference_columns_read_the_simulator_outputs_exactly():
+    rig = Model(sensors=(Encoder(channel="joint_angle", resolution=0.0),
+                         Accelerometer(channel="tip_acceleration", x=0.5)))
+    t = np.arange(0.0, 0.6, rig.testbed.dt)
     torque = np.where(t < 0.1, 0.0, 0.2)
-    out = simulate(arm.model(), arm.reference_parameters(), torque, arm.testbed.dt)
+    out = simulate(rig, rig.space.reference(), torque, rig.testbed.dt)
+    reference = simulate(Model(), rig.space.reference(), torque, rig.testbed.dt)
+    np.testing.assert_array_equal(out.channel("tip_acceleration"), reference.tip_acceleration)
     record = Record(time=t + 2.0, torque=torque, joint_angle=np.asarray(out.joint_angle),
                     tip_acceleration=np.asarray(out.tip_acceleration), name="logged")
-    ready = model_record(arm, record)
+    ready = model_record(rig, record)
     assert ready.extras == {}
     np.testing.assert_array_equal(ready.tip_acceleration, record.tip_acceleration)
-    assert fit_channels(arm, record) == ("joint_angle", "tip_acceleration")
+    assert fitted_channels([record], rig) == ("joint_angle", "tip_acceleration")
+    assert model_record(load_arm(ARMS / "reference.toml"), record) is record  # no sensors

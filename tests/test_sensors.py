@@ -17,7 +17,6 @@ from jaxflex.sensors import (
     Tachometer,
     noise_levels,
     readings,
-    with_stations,
 )
 from jaxflex.signals import reference_input
 from jaxflex.stations import beam_rows
@@ -37,7 +36,7 @@ def pulse_run():
         Accelerometer(channel="mid_acceleration", x=0.1234),
         DeflectionSensor(channel="tip_deflection", x=0.5),
     )
-    model = with_stations(Model(), sensors)
+    model = Model(sensors=sensors)
     torque = reference_input("pulse")[1]
     params = reference_parameters()
     return sensors, model, simulate(model, params, torque), simulate(Model(), params, torque)
@@ -45,7 +44,7 @@ def pulse_run():
 
 def test_sensors_at_tip_and_clamp_equal_todays_outputs_exactly(pulse_run):
     sensors, model, outputs, today = pulse_run
-    read = readings(sensors, model, outputs)
+    read = readings(model, outputs)
     np.testing.assert_array_equal(read["tip_acceleration"], today.tip_acceleration)
     np.testing.assert_array_equal(read["tip_deflection"], today.tip_deflection)
     np.testing.assert_array_equal(read["root_strain"], today.root_strain)
@@ -58,7 +57,7 @@ def test_sensors_at_tip_and_clamp_equal_todays_outputs_exactly(pulse_run):
 
 def test_a_record_may_hold_any_subset_of_the_sensors(pulse_run):
     sensors, model, outputs, _ = pulse_run
-    read = readings(sensors, model, outputs, channels=("time", "torque", "mid_strain"))
+    read = readings(model, outputs, channels=("time", "torque", "mid_strain"))
     assert list(read) == ["mid_strain"]
 
 
@@ -70,10 +69,10 @@ def test_mid_link_accelerometer_is_the_second_derivative_of_the_point_motion():
     """
     x, dt = 0.1234, 1e-4
     sensors = (Accelerometer(x=x), DeflectionSensor(x=x))
-    model = with_stations(Model(), sensors)
+    model = Model(sensors=sensors)
     time = np.arange(0.0, 1.0 + dt / 2, dt)
     outputs = simulate(model, reference_parameters(), 0.3 * np.sin(np.pi * time) ** 2, dt)
-    read = readings(sensors, model, outputs)
+    read = readings(model, outputs)
     motion = x * np.asarray(outputs.joint_angle) + np.asarray(read["tip_deflection"])
     second_difference = np.diff(motion, 2) / dt**2
     measured = np.asarray(read["acceleration"])[1:-1]
@@ -140,7 +139,7 @@ def test_rotflex_arm_sensors(tmp_path):
     assert arm.sensor("joint_angle").resolution == 2 * math.pi / 4096
     gauge = arm.sensor("deflection_angle")
     assert isinstance(gauge, StrainGauge) and gauge.calibration == "deflection_angle"
-    assert arm.model().stations == (0.0,)
+    assert arm.stations == (0.0,)
     with pytest.raises(KeyError, match="no sensor logging 'tip_acceleration'"):
         arm.sensor("tip_acceleration")
 
@@ -148,13 +147,14 @@ def test_rotflex_arm_sensors(tmp_path):
 @pytest.mark.parametrize(
     ("extra", "message"),
     [
-        ('[[sensors]]\ntype = "laser"', "sensors[2].type: unknown sensor 'laser'; sensors: ["),
-        ('[[sensors]]\ntype = "accelerometer"\nx = 0.6', "sensors[2].x: 0.6 m lies beyond the"),
-        ('[[sensors]]\ntype = "accelerometer"\npositon = 0.2', "sensors[2].positon: unknown key"),
+        ('[[sensors]]\ntype = "laser"', "sensors[0].type: unknown sensor 'laser'; sensors: ["),
+        ('[[sensors]]\ntype = "accelerometer"\nx = 0.6', "sensors[0].x: 0.6 m lies beyond the"),
+        ('[[sensors]]\ntype = "accelerometer"\npositon = 0.2', "sensors[0].positon: unknown key"),
         ('[[sensors]]\ntype = "encoder"\ncounts_per_revolution = 40.5',
-         "sensors[2].counts_per_revolution: expected a whole number"),
-        ('[[sensors]]\ntype = "accelerometer"\nchannel = "tip_acceleration"',
-         "two sensors log the same channel"),
+         "sensors[0].counts_per_revolution: expected a whole number"),
+        ('[[sensors]]\ntype = "accelerometer"\nchannel = "tip_acceleration"\n'
+         '[[sensors]]\ntype = "accelerometer"\nchannel = "tip_acceleration"',
+         "two sensors log the channel(s) ['tip_acceleration']"),
     ],
 )
 def test_sensor_table_errors_name_file_and_key(tmp_path, extra, message):

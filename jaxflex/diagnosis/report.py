@@ -254,6 +254,8 @@ def _prediction_channels(prediction: Any, n: int, name: str,
             value = prediction.get(c)
         elif isinstance(prediction, Record):
             value = prediction.channel(c) if c in prediction.columns else None
+        elif c in (getattr(prediction, "readings", None) or {}):  # a sensor's reading
+            value = prediction.readings[c]
         else:
             value = getattr(prediction, c, None)
         if value is None:
