@@ -184,7 +184,11 @@ class Arm:
 
 
 def load_arm(path: str | os.PathLike) -> Arm:
-    """Read and check an arm file (see the module doc)."""
+    """Read and check an arm file (see the module doc), or a packaged one by name
+    (``load_arm("quanser_rotflex")``; :mod:`jaxflex.rigs`)."""
+    from jaxflex.rigs import locate
+
+    path = locate(path)
     where = os.fspath(path)
     try:
         with open(path, "rb") as f:
@@ -476,7 +480,7 @@ def _kind(value: Any) -> str:
 
 
 def reference_arm() -> Arm:
-    """The reference testbed as an :class:`Arm` (what ``arms/reference.toml`` describes)."""
+    """The reference testbed as an :class:`Arm` (what the packaged arm ``reference`` describes)."""
     return Arm(name="reference")
 
 

@@ -1,18 +1,17 @@
 """Arms: arm files describe a rig completely; errors name the file and key; reference = today."""
 
-from pathlib import Path
-
 import numpy as np
 import pytest
 
 from jaxflex import Model, identify, make_records, reference_parameters, simulate
 from jaxflex.arm import Arm, ArmError, arm_from_dict, load_arm
 from jaxflex.drives import VoltageDrive
+from jaxflex.rigs import arm_path
 from jaxflex.sensors import with_stations
 from jaxflex.signals import reference_input
 from jaxflex.simulation import OUTPUT_NAMES
 
-ARMS = Path(__file__).parent.parent / "arms"
+ARMS = arm_path("reference").parent  # the packaged arm files (jaxflex/rigs)
 REFERENCE = ARMS / "reference.toml"
 BED = Model().testbed  # the reference testbed
 
