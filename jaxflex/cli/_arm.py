@@ -1,4 +1,4 @@
-"""``--arm FILE`` and ``--window T0:T1``: every command on a real rig, through one set of helpers.
+"""``--arm ARM`` and ``--window T0:T1``: every command on a real rig, through one set of helpers.
 
 :func:`add_arm_arguments` adds the options, :func:`arm_of` finds the arm (``--arm``, or the one
 a fit was made with), :func:`model_records` maps records as the rig logged them onto the arm's
@@ -10,6 +10,7 @@ column, the sensors' channels; :mod:`jaxflex.measured`), fits the arm's model an
 arm file and window in the fit's settings; ``validate`` then finds the arm there, scores every
 sensor channel of each record over the whole record (or ``--window``) and writes
 ``{"records": [{"name", "role", "nrmse": {channel: percent}}]}`` with ``--json``.
+``--arm`` also takes a packaged rig by name (:mod:`jaxflex.rigs`); a result records the name.
 """
 
 from __future__ import annotations
@@ -22,6 +23,7 @@ from typing import TYPE_CHECKING
 
 from jaxflex._io import same_file
 from jaxflex.cli import UsageError, load_records
+from jaxflex.rigs import is_arm_name, locate
 
 if TYPE_CHECKING:
     from jaxflex.arm import Arm
@@ -48,9 +50,10 @@ def parse_window(text: str | None) -> tuple[float, float] | None:
 
 
 def add_arm_arguments(p: argparse.ArgumentParser, *, window: bool = True) -> None:
-    """``--arm ARM.toml`` (and ``--window T0:T1`` where records are read) on a command."""
-    p.add_argument("--arm", metavar="ARM.toml",
-                   help="the rig's arm file (see jaxflex.arm): its model, drive and sensors")
+    """``--arm ARM`` (and ``--window T0:T1`` where records are read) on a command."""
+    p.add_argument("--arm", metavar="ARM",
+                   help="the rig: a packaged rig's name (see `jaxflex arms list`) or an arm "
+                   "file (ARM.toml, see jaxflex.arm): its model, drive and sensors")
     if window:
         add_window_argument(p)
 
@@ -72,7 +75,8 @@ def arm_of(args: argparse.Namespace, fit=None) -> tuple[Arm, str] | None:
     ``--window`` without an arm is refused."""
     recorded = with_arm(fit)
     given = getattr(args, "arm", None)
-    if given is not None and recorded is not None and not same_file(given, recorded):
+    if (given is not None and recorded is not None
+            and not same_file(locate(given), locate(recorded))):
         raise UsageError(
             f"--arm {given}: the fit was made with the arm {recorded}; leave --arm out"
         )
@@ -93,8 +97,10 @@ def model_records(arm: Arm, records, window: tuple[float, float] | None) -> list
 
 
 def arm_settings(arm_file: str, window: tuple[float, float] | None) -> dict:
-    """What a result records about its arm: the file (absolute) and the window."""
-    return {"arm": str(Path(arm_file).resolve()), "window": window}
+    """What a result records about its arm: a packaged rig's name, else the file (absolute),
+    and the window."""
+    arm = arm_file if is_arm_name(arm_file) else str(Path(arm_file).resolve())
+    return {"arm": arm, "window": window}
 
 
 def refuse_two_link(records) -> None:
@@ -131,7 +137,7 @@ def arm_fit_keywords(args: argparse.Namespace, function, arm: Arm, record) -> di
 
 
 def identify_with_arm(args: argparse.Namespace, arm: Arm, arm_file: str) -> int:
-    """``jaxflex identify DATA... --arm ARM.toml``: see the module doc."""
+    """``jaxflex identify DATA... --arm ARM``: see the module doc."""
     from jaxflex import identify
     from jaxflex._io import all_or_nothing
     from jaxflex.cli._checks import JSON_SUFFIXES, check_outputs
@@ -199,7 +205,7 @@ def _speaking_cli(function, *args, **kwargs):
 
 
 def with_arm(fit) -> Path | None:
-    """The arm file a fit was made with, or None."""
+    """The arm a fit was made with (a packaged rig's name or a file), or None."""
     settings = getattr(fit, "settings", None)
     arm = settings.get("arm") if isinstance(settings, dict) else None
     return None if arm is None else Path(arm)
