@@ -59,7 +59,8 @@ def add_arm_arguments(p: argparse.ArgumentParser, *, window: bool = True) -> Non
 
 
 def load_arm_file(path: str | os.PathLike, option: str = "--arm") -> Arm:
-    """The arm file ``path``; its errors are one-line usage errors."""
+    """The arm ``path`` names (a file, or a packaged rig); its errors are one-line usage
+    errors."""
     from jaxflex.arm import ArmError, load_arm
 
     try:
