@@ -3,7 +3,7 @@
 Both models are fitted on the square-wave run (500 Hz, 5 s) and simulated, from rest and from
 the logged voltage alone, on the held-out random run 985 (1 kHz, 60 s):
 
-* physical — ``arms/quanser_rotflex.toml`` (voltage drive, encoder, root strain gauge as
+* physical — the packaged arm ``quanser_rotflex`` (voltage drive, encoder, root strain gauge as
   Quanser's deflection angle), six parameters identified by DE + Levenberg–Marquardt
   (``jaxflex.identify``) on both channels; and the same with the ``torque_offset`` effect
   (seven parameters);
@@ -34,7 +34,7 @@ from jaxflex.measured import model_record, validate
 from jaxflex.metrics import nrmse
 
 ROOT = Path(__file__).resolve().parent
-ARM = ROOT.parent / "arms" / "quanser_rotflex.toml"
+ARM = "quanser_rotflex"  # the packaged arm file (jaxflex/rigs)
 RESULTS = ROOT / "results" / "real_rig.json"
 CHANNELS = ("joint_angle", "deflection_angle")
 
@@ -140,7 +140,7 @@ def main() -> None:
     results = {
         "data": {r.name: r.metadata["source"] for r in (fit_run, held_out)},
         "licence": fit_run.metadata["licence"],
-        "arm": str(ARM.relative_to(ROOT.parent)),
+        "arm": ARM,
         "black_box": black_box(fit_run, held_out),
     }
     write_json(args.out, results | {"provenance": provenance()}, overwrite=True)

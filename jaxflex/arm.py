@@ -82,7 +82,11 @@ class ArmError(ValueError):
 
 
 def load_arm(path: str | os.PathLike) -> Model:
-    """Read and check an arm file (see the module doc): the rig it describes."""
+    """Read and check an arm file (see the module doc), or a packaged one by name
+    (``load_arm("quanser_rotflex")``; :mod:`jaxflex.rigs`): the rig it describes."""
+    from jaxflex.rigs import locate
+
+    path = locate(path)
     where = os.fspath(path)
     try:
         with open(path, "rb") as f:

@@ -3,7 +3,6 @@ today; every rig round-trips exactly through TOML and a fit file."""
 
 import json
 import tomllib
-from pathlib import Path
 from typing import ClassVar
 
 import equinox as eqx
@@ -15,11 +14,12 @@ from jaxflex.arm import ArmError, arm_from_dict, arm_to_dict, arm_to_toml, load_
 from jaxflex.drives import VoltageDrive
 from jaxflex.effects import Effect, SensorGain, register_effect
 from jaxflex.parameters import ParameterSpec
+from jaxflex.rigs import arm_path
 from jaxflex.sensors import Accelerometer, DeflectionSensor, Encoder, StrainGauge, Tachometer
 from jaxflex.signals import reference_input
 from jaxflex.simulation import OUTPUT_NAMES
 
-ARMS = Path(__file__).parent.parent / "arms"
+ARMS = arm_path("reference").parent  # the packaged arm files (jaxflex/rigs)
 REFERENCE = ARMS / "reference.toml"
 BED = Model().testbed  # the reference testbed
 

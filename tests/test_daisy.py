@@ -2,10 +2,9 @@
 
 The sweep is in periodic steady state, so the record fitted holds the input twice (the model
 starts from rest; its start-up transient falls in the first period) and the score is taken on
-the second period. Arm file: ``arms/daisy_robot_arm.toml`` (its assumptions are stated there).
+the second period. Arm file: the packaged ``daisy_robot_arm`` (``jaxflex/rigs/``; its
+assumptions are stated there).
 """
-
-from pathlib import Path
 
 import numpy as np
 import pytest
@@ -18,7 +17,7 @@ from jaxflex.metrics import nrmse
 from jaxflex.sensors import calibrated
 from jaxflex.simulation import simulate
 
-ARM = load_arm(Path(__file__).parent.parent / "arms" / "daisy_robot_arm.toml")
+ARM = load_arm("daisy_robot_arm")
 FITTED = {  # identify(generations=15, population=24, seed=0) on the 2-core test machine
     "E": 6541430354.652036, "J_h": 0.12719477161918677, "b_v": 7.276024132458721e-06,
     "tau_c": 0.09996694522137112, "alpha": 1.3311693526877817, "beta": 3.1555149491009096e-06,

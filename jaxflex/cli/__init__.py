@@ -27,6 +27,7 @@ COMMANDS: tuple[str, ...] = (
     "design",
     "demo",
     "datasets",
+    "arms",
 )
 """The sub-commands of ``jaxflex``, in the order the help lists them."""
 EXIT_OK, EXIT_BUG, EXIT_USAGE, EXIT_INTERRUPTED, EXIT_TERMINATED = 0, 1, 2, 130, 143

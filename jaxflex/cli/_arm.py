@@ -46,14 +46,16 @@ def parse_window(text: str | None) -> Window:
 def add_arm_arguments(p: argparse.ArgumentParser, *, window: bool = True) -> None:
     """``--arm RIG`` (and ``--window T0:T1`` where records are read) on a command."""
     p.add_argument("--arm", metavar="RIG",
-                   help="the rig: an arm file (see jaxflex.arm) or a packaged rig's name "
-                        "(default: the reference testbed, or the rig a given fit carries)")
+                   help="the rig: a packaged rig's name (see `jaxflex arms list`) or an arm "
+                        "file (RIG.toml, see jaxflex.arm); default: the reference testbed, or "
+                        "the rig a given fit carries")
     if window:
         add_window_argument(p)
 
 
 def load_arm_file(path: str | os.PathLike, option: str = "--arm") -> Model:
-    """The rig of arm file ``path``; its errors are one-line usage errors."""
+    """The rig ``path`` names (an arm file, or a packaged rig); its errors are one-line usage
+    errors."""
     from jaxflex.arm import ArmError, load_arm
 
     try:

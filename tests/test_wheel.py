@@ -1,0 +1,114 @@
+"""The installed package, not the checkout: a wheel built from the repository, installed into a
+fresh virtual environment, runs the README's real-data commands from a folder outside the
+checkout, with the rig named by ``--arm quanser_rotflex`` (its arm file ships in the wheel).
+
+The fresh environment sees this environment's dependencies (jax, ...) through a ``.pth`` line
+naming their site-packages, written after the wheel is installed (so that pip never weighs the
+development install); a ``.pth`` line adds the folder only, so the development install's own
+``.pth`` finder, which would import the checkout, is not run there. The wheel is built by pip
+from a copy of what a source distribution holds (the checkout's ``build/`` is never touched);
+pip fetches the build backend that ``pyproject.toml`` names from its configured index, as
+``make`` does for the development install.
+"""
+
+import json
+import math
+import os
+import shutil
+import site
+import subprocess
+import sys
+import sysconfig
+from pathlib import Path
+
+import pytest
+from test_datasets import REAL_DATA_DIR
+
+ROOT = Path(__file__).resolve().parents[1]
+SHARED_REAL_DATA = ROOT.parent / "shared" / "realdata"  # the Makefile's REALDATA
+DISTRIBUTED = ("pyproject.toml", "README.md", "LICENSE", "jaxflex")  # what pip builds from
+TINY = ["--generations", "2", "--population", "8", "--no-refine", "--quiet"]
+
+
+def _real_data() -> Path:
+    """The local copy of the public records: ``JAXFLEX_DATA_DIR``, else the Makefile's folder
+    beside the project; the test skips without one (it never downloads)."""
+    folder = Path(REAL_DATA_DIR) if REAL_DATA_DIR else SHARED_REAL_DATA
+    if not (folder / "quanser_rotflex").is_dir():
+        pytest.skip(f"real-rig data: no local copy in {folder} (set JAXFLEX_DATA_DIR, or put "
+                    "it in ../shared/realdata as the Makefile does)")
+    return folder
+
+
+def _run(command: list, cwd: Path, env: dict) -> str:
+    """Run ``command``; its stdout, or a failure showing what it printed."""
+    done = subprocess.run(command, cwd=cwd, env=env, capture_output=True, text=True,
+                          timeout=300)
+    assert done.returncode == 0, f"{command}: exit {done.returncode}\n{done.stdout}{done.stderr}"
+    return done.stdout
+
+
+def _fresh_venv(tmp: Path) -> tuple[Path, Path]:
+    """A new virtual environment with only the wheel built from this checkout in it, then this
+    environment's site-packages after it; its (python, site-packages)."""
+    source = tmp / "source"
+    for name in DISTRIBUTED:
+        original = ROOT / name
+        if original.is_dir():
+            shutil.copytree(original, source / name,
+                            ignore=shutil.ignore_patterns("__pycache__", "*.pyc"))
+        else:
+            source.mkdir(exist_ok=True)
+            shutil.copy2(original, source / name)
+    pip = [sys.executable, "-m", "pip", "--disable-pip-version-check", "--quiet"]
+    _run([*pip, "wheel", "--no-deps", "--wheel-dir", str(tmp / "dist"), str(source)], tmp,
+         os.environ)
+    (wheel,) = (tmp / "dist").glob("jaxflex-*.whl")
+    venv = tmp / "venv"
+    _run([sys.executable, "-m", "venv", "--without-pip", str(venv)], tmp, os.environ)
+    python = venv / "bin" / "python"
+    _run([*pip, "--python", str(python), "install", "--no-deps", "--no-index", str(wheel)],
+         tmp, os.environ)
+    packages = Path(_run([str(python), "-c", "import sysconfig; print(sysconfig.get_path("
+                                             "'purelib'))"], tmp, os.environ).strip())
+    ours = [sysconfig.get_path("purelib"), *site.getsitepackages()]
+    (packages / "dependencies.pth").write_text("\n".join(dict.fromkeys(ours)) + "\n")
+    return python, packages
+
+
+def test_the_wheel_installs_and_runs_the_real_data_commands_outside_the_checkout(tmp_path):
+    data = _real_data()
+    python, packages = _fresh_venv(tmp_path)
+    work = tmp_path / "elsewhere"
+    work.mkdir()
+    env = {k: v for k, v in os.environ.items() if k not in ("PYTHONPATH", "PYTHONHOME")}
+    env |= {"JAXFLEX_DATA_DIR": str(data), "JAXFLEX_PROGRESS": "0", "JAXFLEX_HOST_DEVICES": "1"}
+    where = _run([str(python), "-c", "import jaxflex, jaxflex.rigs as r; "
+                  "print(jaxflex.__file__); print(r.arm_path('reference'))"], work, env)
+    module, rig = (Path(line) for line in where.splitlines())
+    assert module == packages / "jaxflex" / "__init__.py"  # the wheel's, not the checkout's
+    assert rig == packages / "jaxflex" / "rigs" / "reference.toml"
+    jaxflex = [str(python.parent / "jaxflex")]  # the wheel's console script
+    listed = _run([*jaxflex, "arms", "list"], work, env).splitlines()
+    assert [line.split(":")[0] for line in listed] == [
+        "daisy_robot_arm", "quanser_rotflex", "reference"
+    ]
+    shown = _run([*jaxflex, "arms", "show", "quanser_rotflex"], work, env)
+    assert shown == (ROOT / "jaxflex" / "rigs" / "quanser_rotflex.toml").read_text()
+    written = _run([*jaxflex, "datasets", "get", "quanser_rotflex", "--out", "rotflex"], work,
+                   env).split()
+    assert sorted(Path(p).name for p in written) == ["random_985.csv", "square_wave.csv"]
+    _run([*jaxflex, "identify", "rotflex/square_wave.csv", "--arm", "quanser_rotflex", *TINY,
+          "--out", "fit.json"], work, env)
+    assert json.loads((work / "fit.json").read_text())["settings"]["arm"] == "quanser_rotflex"
+    _run([*jaxflex, "validate", "rotflex/square_wave.csv", "rotflex/random_985.csv", "--fit",
+          "fit.json", "--json", "table.json"], work, env)
+    table = json.loads((work / "table.json").read_text())
+    assert table["arm"] == "quanser_rotflex"  # found in the fit, by name
+    rows = table["records"]
+    assert [(r["name"], r["role"]) for r in rows] == [
+        ("square_wave", "fit"), ("random_985", "held-out")
+    ]
+    for row in rows:
+        assert set(row["nrmse"]) == {"joint_angle", "deflection_angle"}
+        assert all(math.isfinite(v) and v > 0 for v in row["nrmse"].values()), row
