@@ -10,7 +10,7 @@ import pytest
 import jaxflex
 from jaxflex.arm import ArmError, load_arm
 from jaxflex.cli import UsageError, main
-from jaxflex.cli._arm import arm_of, arm_settings
+from jaxflex.cli._arm import rig_of, rig_settings
 from jaxflex.rigs import arm_path, is_arm_name, locate, packaged_arms
 
 PACKAGE = Path(jaxflex.__file__).parent
@@ -29,8 +29,7 @@ def test_the_arm_files_are_package_data():
 def test_a_name_loads_the_same_arm_as_its_file():
     by_name = load_arm("quanser_rotflex")
     assert by_name == load_arm(arm_path("quanser_rotflex"))
-    assert by_name.source == str(arm_path("quanser_rotflex"))
-    assert by_name.testbed.length == 0.419
+    assert by_name.name == "quanser_rotflex" and by_name.testbed.length == 0.419
 
 
 def test_unknown_names_are_one_line_listing_the_packaged_ones():
@@ -59,20 +58,22 @@ def test_a_path_is_a_path_and_an_existing_file_wins_over_a_name(tmp_path, monkey
 
 def test_results_record_a_name_as_the_name_and_a_file_as_its_absolute_path(tmp_path, monkeypatch):
     monkeypatch.chdir(tmp_path)
-    assert arm_settings("quanser_rotflex", None) == {"arm": "quanser_rotflex", "window": None}
+    rig = load_arm("quanser_rotflex")
+    assert rig_settings(rig, "quanser_rotflex", None) == {
+        "rig": "quanser_rotflex", "arm": "quanser_rotflex", "window": None}
     Path("rig.toml").touch()
-    assert arm_settings("rig.toml", (0.0, 1.0))["arm"] == str(tmp_path / "rig.toml")
+    assert rig_settings(rig, "rig.toml", (0.0, 1.0))["arm"] == str(tmp_path / "rig.toml")
 
 
-def test_a_fits_arm_matches_the_same_rig_given_by_name_or_by_file():
-    fit = SimpleNamespace(settings={"arm": "quanser_rotflex"})
+def test_a_fits_rig_matches_the_same_rig_given_by_name_or_by_file():
+    fit = SimpleNamespace(model=lambda: load_arm("quanser_rotflex"))
     for given in ("quanser_rotflex", str(arm_path("quanser_rotflex")), None):
-        arm, recorded = arm_of(argparse.Namespace(arm=given, window=None), fit)
-        assert arm.name == "quanser_rotflex"
-        assert recorded == (given or "quanser_rotflex")
-    with pytest.raises(UsageError, match=r"^--arm reference: the fit was made with the arm "
-                                         r"quanser_rotflex; leave --arm out$"):
-        arm_of(argparse.Namespace(arm="reference", window=None), fit)
+        rig, source = rig_of(argparse.Namespace(arm=given, window=None), fit)
+        assert rig == load_arm("quanser_rotflex") and source == given
+    with pytest.raises(UsageError, match=r"^--arm reference: the fit was made with another rig "
+                                         r"\('quanser_rotflex'\), which it carries; leave --arm "
+                                         r"out$"):
+        rig_of(argparse.Namespace(arm="reference", window=None), fit)
 
 
 def test_arms_list_and_show(capsys):

@@ -102,9 +102,11 @@ def test_the_wheel_installs_and_runs_the_real_data_commands_outside_the_checkout
           "--out", "fit.json"], work, env)
     assert json.loads((work / "fit.json").read_text())["settings"]["arm"] == "quanser_rotflex"
     _run([*jaxflex, "validate", "rotflex/square_wave.csv", "rotflex/random_985.csv", "--fit",
-          "fit.json", "--json", "table.json"], work, env)
+          "fit.json", "--json", "table.json", "--report", "report"], work, env)
     table = json.loads((work / "table.json").read_text())
-    assert table["arm"] == "quanser_rotflex"  # found in the fit, by name
+    assert table["rig"] == "quanser_rotflex"  # the rig the fit carries
+    figures = sorted(p.name for p in (work / "report").glob("*.png"))
+    assert figures == ["frf.png", "random_985_time.png", "square_wave_time.png"]
     rows = table["records"]
     assert [(r["name"], r["role"]) for r in rows] == [
         ("square_wave", "fit"), ("random_985", "held-out")
