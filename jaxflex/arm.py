@@ -25,6 +25,11 @@ An arm file is TOML (read with the standard library's :mod:`tomllib`)::
     type = "voltage"
     resistance = 2.6
     ...
+    # or a raw command (PWM, DAC counts) with an identified torque per unit:
+    # type = "command"
+    # unit = "counts"         # the command's unit, shown in reports
+    # torque_per_unit = { reference = 0.002, lower = 0.001, upper = 0.004 }  # N m per count
+    # saturation = 2047       # optional: the command is clipped to ±2047 counts
     [[sensors]]               # see jaxflex.sensors; one table per measured channel
     type = "encoder"
     counts_per_revolution = 4096
@@ -39,6 +44,9 @@ A sensor's ``gain`` given as a table of ``reference``, ``lower`` and ``upper`` i
 records are read with the reference gain and the arm's model holds a ``sensor_gain`` effect on
 the output the sensor is fitted as (:mod:`jaxflex.effects.sensor_gain`). An ``offset`` is always
 fixed: records are re-zeroed at rest (:mod:`jaxflex.measured`), which removes any constant.
+A command drive's ``torque_per_unit`` given as such a table is identified the same way: the
+drive turns the command into torque with the reference value and the arm's model holds a
+``drive_gain`` effect (:mod:`jaxflex.effects.drive_gain`).
 
 Any error (unknown key, missing value, wrong type, bounds that exclude the reference value) is
 an :class:`ArmError` whose one-line message names the file and the key.
@@ -55,7 +63,7 @@ from collections.abc import Mapping
 from dataclasses import dataclass, field
 from typing import Any
 
-from jaxflex.drives import DRIVES, Drive, TorqueDrive
+from jaxflex.drives import DRIVES, CommandDrive, Drive, TorqueDrive
 from jaxflex.effects import Effect, SensorGain, get_effect
 from jaxflex.model import Model
 from jaxflex.parameters import BASE_PARAMETERS, ParameterSpace, ParameterSpec, Params
@@ -142,7 +150,7 @@ class Arm:
         names again is taken once, as given there: a fit's model holds the arm's own)."""
         own = tuple(get_effect(name) for name in self.effects) + tuple(
             self.calibration(*gain) for gain in self.identified_gains
-        )
+        ) + self.drive.effects()
         given = {e.name for e in effects}
         return Model(
             self.testbed,
@@ -323,9 +331,31 @@ def _drive(table: _Table) -> Drive:
             f"{table.where}: {table.key('type')}: unknown drive {kind!r}; drives: {sorted(DRIVES)}"
         )
     cls = DRIVES[kind]
+    if cls is CommandDrive:
+        return _command_drive(table)
     settings = {f.name: table.number(f.name) for f in dataclasses.fields(cls)}
     table.done()
     return cls(**settings)
+
+
+def _command_drive(table: _Table) -> CommandDrive:
+    """A command drive: ``unit``, ``torque_per_unit`` (a table of bounds: identified) and an
+    optional ``saturation``."""
+    unit = table.string("unit")
+    identified = None
+    if isinstance(table.data.get("torque_per_unit"), Mapping):
+        entry = table.table("torque_per_unit")
+        gain, *identified = _bounded(entry)
+        entry.done()
+    else:
+        gain = table.number("torque_per_unit")
+    saturation = table.number("saturation") if "saturation" in table.data else None
+    table.done()
+    try:
+        return CommandDrive(torque_per_unit=gain, saturation=saturation, unit=unit,
+                            identified=None if identified is None else tuple(identified))
+    except ValueError as err:
+        raise ArmError(f"{table.where}: {table.prefix[:-1]}: {err}") from None
 
 
 def _sensors(
