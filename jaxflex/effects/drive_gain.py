@@ -40,9 +40,9 @@ class DriveGain(Effect):
         "same, so only the link's mass, which the arm file states, tells it apart."
     )
     signature: ClassVar[str] = (
-        "joint-angle residual proportional to the response to the input itself, in phase with "
-        "it at every frequency; the fitted hub inertia and viscous friction off by the same "
-        "factor; frequencies unchanged"
+        "every channel's residual, to first order, a multiple of the arm's own response to the "
+        "input (in phase with it at every frequency); held at a wrong value, the fitted hub "
+        "inertia and viscous friction move by about the same factor; frequencies unchanged"
     )
 
     def __check_init__(self) -> None:
