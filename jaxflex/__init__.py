@@ -41,7 +41,14 @@ from jaxflex.discovery import (  # noqa: E402
     refit,
     score_tests,
 )
-from jaxflex.drives import DRIVES, CurrentDrive, Drive, TorqueDrive, VoltageDrive  # noqa: E402
+from jaxflex.drives import (  # noqa: E402
+    DRIVES,
+    CommandDrive,
+    CurrentDrive,
+    Drive,
+    TorqueDrive,
+    VoltageDrive,
+)
 from jaxflex.effects import EFFECTS, Effect, get_effect, library  # noqa: E402
 from jaxflex.frequency_response import frf, mode_shapes, natural_frequencies  # noqa: E402
 from jaxflex.identification import Fit, identify, load_fit  # noqa: E402
@@ -66,6 +73,7 @@ __all__ = [
     "DRIVES",
     "EFFECTS",
     "ArmError",
+    "CommandDrive",
     "Comparison",
     "CurrentDrive",
     "Dataset",

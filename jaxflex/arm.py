@@ -46,7 +46,9 @@ without ``[[sensors]]`` is fitted on the simulator's outputs, named as record co
 
 A sensor's ``gain`` given as a table of ``reference``, ``lower`` and ``upper`` is identified:
 the model holds a ``sensor_gain`` effect on the sensor's channel
-(:mod:`jaxflex.effects.sensor_gain`). An ``offset`` is always fixed: records are re-zeroed at
+(:mod:`jaxflex.effects.sensor_gain`). A command drive's ``torque_per_unit`` given as such a table
+is identified the same way: the model holds a ``drive_gain`` effect
+(:mod:`jaxflex.effects.drive_gain`). An ``offset`` is always fixed: records are re-zeroed at
 rest (:mod:`jaxflex.measured`), which removes any constant.
 
 Any error (unknown key, missing value, wrong type, bounds that exclude the reference value) is
@@ -63,8 +65,8 @@ import tomllib
 from collections.abc import Mapping
 from typing import Any
 
-from jaxflex.drives import DRIVES, Drive
-from jaxflex.effects import ChannelEffect, Effect, SensorGain, get_effect
+from jaxflex.drives import DRIVES, CommandDrive, Drive
+from jaxflex.effects import ChannelEffect, DriveGain, Effect, SensorGain, get_effect
 from jaxflex.model import Model
 from jaxflex.parameters import BASE_PARAMETERS, ParameterSpec
 from jaxflex.sensors import SENSORS, Sensor
@@ -132,11 +134,11 @@ def arm_from_dict(data: Mapping[str, Any], where: str = "arm") -> Model:
         clamp_offset=clamp_offset,
     )
     specs, fixed = _parameters(top.table("parameters"))
-    drive = _drive(top.table("drive"))
+    drive, drive_gain = _drive(top.table("drive"))
     sensors, gains = _sensors(top, length)
     effects = _effects(top) + tuple(
         _gain_effect(top.where, channel, bounds) for channel, bounds in gains
-    )
+    ) + drive_gain
     name = top.string("name")
     description = top.string("description", "")
     top.done()
@@ -316,17 +318,42 @@ def _bounded(
     return reference, lower, upper
 
 
-def _drive(table: _Table) -> Drive:
-    """The drive named by ``type`` with its constants (all required)."""
+def _drive(table: _Table) -> tuple[Drive, tuple[DriveGain, ...]]:
+    """The drive named by ``type`` with its constants (all required), and the ``drive_gain``
+    effect that identifies a command drive's torque per unit given with bounds."""
     kind = table.string("type")
     if kind not in DRIVES:
         raise ArmError(
             f"{table.where}: {table.key('type')}: unknown drive {kind!r}; drives: {sorted(DRIVES)}"
         )
     cls = DRIVES[kind]
+    if cls is CommandDrive:
+        return _command_drive(table)
     settings = {f.name: table.number(f.name) for f in dataclasses.fields(cls)}
     table.done()
-    return cls(**settings)
+    return cls(**settings), ()
+
+
+def _command_drive(table: _Table) -> tuple[CommandDrive, tuple[DriveGain, ...]]:
+    """A command drive: ``unit``, ``torque_per_unit`` (a table of bounds: identified) and an
+    optional ``saturation``."""
+    unit = table.string("unit")
+    bounds = None
+    if isinstance(table.data.get("torque_per_unit"), Mapping):
+        entry = table.table("torque_per_unit")
+        gain, *bounds = _bounded(entry)
+        entry.done()
+    else:
+        gain = table.number("torque_per_unit")
+    saturation = table.number("saturation") if "saturation" in table.data else None
+    table.done()
+    try:
+        drive = CommandDrive(torque_per_unit=gain, saturation=saturation, unit=unit)
+        if bounds is None:
+            return drive, ()
+        return drive, (DriveGain(reference=gain, lower=bounds[0], upper=bounds[1], unit=unit),)
+    except ValueError as err:
+        raise ArmError(f"{table.where}: {table.prefix[:-1]}: {err}") from None
 
 
 def _sensors(

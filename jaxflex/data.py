@@ -1,10 +1,11 @@
 """Measured records of the flexible arm: the ``Record`` and ``Dataset`` containers and file IO.
 
-A record holds a time column, one input column (``torque``, or the ``current`` or ``voltage`` a
-real drive logs) and any subset of the measured outputs (joint angle, tip acceleration, or any
-sensor's channel) as float64 NumPy arrays, plus any extra columns, metadata from ``# key: value``
-comments and where it came from. Records are immutable and always valid: construction checks
-shapes, finiteness, strictly increasing and uniform time, so every later stage can rely on it.
+A record holds a time column, one input column (``torque``, or the ``current``, ``voltage`` or raw
+``command`` a real drive logs) and any subset of the measured outputs (joint angle, tip
+acceleration, or any sensor's channel) as float64 NumPy arrays, plus any extra columns, metadata
+from ``# key: value`` comments and where it came from. Records are immutable and always valid:
+construction checks shapes, finiteness, strictly increasing and uniform time, so every later
+stage can rely on it.
 
 Loading is strict and talkative: every problem in a file is an error (:class:`RecordError`) or a
 warning (:class:`RecordWarning`) that names the file, the column and the line to look at.
@@ -35,13 +36,15 @@ REQUIRED_COLUMNS: tuple[str, ...] = ("time", "torque", "joint_angle", "tip_accel
 """The columns of the reference-testbed format; a record may lack all but ``time``."""
 OUTPUT_COLUMNS: tuple[str, ...] = ("joint_angle", "tip_acceleration")
 """Outputs fitted by default: joint angle (rad), tip acceleration (m/s²)."""
-INPUT_COLUMNS: tuple[str, ...] = ("torque", "current", "voltage")
-"""Input columns, one per drive; a record holds exactly one of them."""
+INPUT_COLUMNS: tuple[str, ...] = ("torque", "current", "voltage", "command")
+"""Input columns, one per drive; a record holds exactly one of them. A ``command`` is in the
+rig's own unit (counts: the arm file's drive states it), so no unit check reads it."""
 KNOWN_UNITS: dict[str, str] = {
     "time": "s",
     "torque": "N m",
     "current": "A",
     "voltage": "V",
+    "command": "1",
     "joint_angle": "rad",
     "tip_acceleration": "m/s^2",
     "joint_velocity": "rad/s",
@@ -76,11 +79,11 @@ class RecordWarning(UserWarning):
 
 @dataclass(frozen=True, eq=False)
 class Record:
-    """One experiment: a sampled input (torque, current or voltage) and measured outputs.
+    """One experiment: a sampled input (torque, current, voltage or command) and measured outputs.
 
     ``torque``, ``joint_angle`` and ``tip_acceleration`` are ``None`` when the record lacks them;
-    a ``current`` or ``voltage`` input and other sensors' channels are extras. A record holds
-    exactly one input column and at least one other column.
+    a ``current``, ``voltage`` or ``command`` input and other sensors' channels are extras. A
+    record holds exactly one input column and at least one other column.
 
     Arrays are float64 copies marked read-only. Time must be strictly increasing and uniformly
     sampled (steps within ``UNIFORM_RTOL`` of each other); it need not start at 0, but
@@ -158,7 +161,7 @@ class Record:
 
     @property
     def input_name(self) -> str:
-        """Name of the input column (``torque``, ``current`` or ``voltage``)."""
+        """Name of the input column (``torque``, ``current``, ``voltage`` or ``command``)."""
         return next(c for c in INPUT_COLUMNS if c in self.columns)
 
     @property
@@ -724,7 +727,7 @@ def check_units(columns: Mapping[str, np.ndarray], where: str = "record") -> Non
             f"milliseconds or sample numbers? time must be in s{skip}"
         )
     angle, torque = columns.get("joint_angle"), columns.get("torque")
-    if angle is None or torque is None:  # a current or voltage drive: no torque scale to check
+    if angle is None or torque is None:  # another drive's input: no torque scale to check
         return
     if np.ptp(angle) == 0:  # possible (torque below breakaway friction), but worth a word
         warnings.warn(
@@ -814,7 +817,7 @@ def _missing_columns(names: Sequence[str], kind: str) -> str:
 
 
 def _check_inputs_and_outputs(names: Sequence[str], where: str) -> None:
-    """Exactly one input column (torque, current or voltage) and at least one output column."""
+    """Exactly one input column (:data:`INPUT_COLUMNS`) and at least one output column."""
     inputs = [c for c in INPUT_COLUMNS if c in names]
     if len(inputs) != 1:
         found = f"found {inputs}" if inputs else "found none"

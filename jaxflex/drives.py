@@ -10,7 +10,12 @@ the joint velocity. Three drives cover the rigs in the lab:
 * :class:`VoltageDrive` — a DC motor and gearbox driven by a voltage,
   ``τ = K_g η_g η_m k_t (V − K_g k_m θ')/R_m``. This is exactly a torque drive with input
   ``g·V`` plus a viscous friction ``g·K_g·k_m·θ'`` (``g = K_g η_g η_m k_t/R_m``), and it is
-  implemented so: the back-EMF is the drive's :attr:`~Drive.damping`.
+  implemented so: the back-EMF is the drive's :attr:`~Drive.damping`;
+* :class:`CommandDrive` — a raw command in the rig's own unit (PWM or DAC counts),
+  ``τ = torque_per_unit · clip(u, ±saturation)``: the clip is applied to the logged command,
+  as the amplifier saturates. The torque per unit is often not known; given with bounds in an
+  arm file it is identified: the rig then holds a ``drive_gain`` effect
+  (:mod:`jaxflex.effects.drive_gain`).
 """
 
 from __future__ import annotations
@@ -20,6 +25,7 @@ import math
 from typing import ClassVar
 
 import equinox as eqx
+import jax.numpy as jnp
 from jaxtyping import Array, Float
 
 
@@ -46,7 +52,7 @@ class Drive(eqx.Module):
         """The torque the input signal applies before the drive's damping."""
         return self.gain * signal
 
-    def settings(self) -> dict[str, float]:
+    def settings(self) -> dict[str, float | str]:
         """The drive's constants by name (for arm files and reports)."""
         return {f.name: getattr(self, f.name) for f in dataclasses.fields(self)}
 
@@ -118,7 +124,53 @@ class VoltageDrive(Drive):
         return self.gain * self.gear_ratio * self.back_emf_constant
 
 
-DRIVES: dict[str, type[Drive]] = {d.name: d for d in (TorqueDrive, CurrentDrive, VoltageDrive)}
+class CommandDrive(Drive):
+    """A raw command (PWM or DAC counts): ``τ = torque_per_unit · clip(u, ±saturation)``.
+
+    ``unit`` is the command's unit as the rig logs it (``"counts"``), shown in reports;
+    ``torque_per_unit`` is in N m per that unit at the joint. ``saturation`` (command units;
+    ``None``: none) clips the *logged command* before it becomes torque, as an amplifier that
+    cannot give more does. To identify the torque per unit, the rig holds a ``drive_gain``
+    effect whose reference is ``torque_per_unit``.
+    """
+
+    name: ClassVar[str] = "command"
+    torque_per_unit: float = 1.0  # N m per command unit at the joint
+    saturation: float | None = None  # command units, symmetric
+    unit: str = eqx.field(static=True, default="1")  # type: ignore[assignment]
+
+    def __check_init__(self) -> None:
+        for key in ("torque_per_unit", "saturation"):
+            value = getattr(self, key)
+            if key == "saturation" and value is None:
+                continue
+            if isinstance(value, bool) or not (
+                isinstance(value, (int, float)) and math.isfinite(value) and value > 0
+            ):
+                raise ValueError(f"command drive: {key}={value!r} must be a positive number")
+        if not isinstance(self.unit, str) or not self.unit.strip():
+            raise ValueError(
+                f"command drive: unit={self.unit!r} must name the command's unit, e.g. 'counts'"
+            )
+
+    @property
+    def gain(self) -> float:
+        return self.torque_per_unit
+
+    def torque(self, signal: Float[Array, " n"]) -> Float[Array, " n"]:
+        if self.saturation is not None:
+            signal = jnp.clip(signal, -self.saturation, self.saturation)
+        return self.torque_per_unit * signal
+
+    def settings(self) -> dict[str, float | str]:
+        """The unit, the torque per unit (the reference of a ``drive_gain``) and any saturation."""
+        values = {"unit": self.unit, "torque_per_unit": self.torque_per_unit}
+        return values | ({} if self.saturation is None else {"saturation": self.saturation})
+
+
+DRIVES: dict[str, type[Drive]] = {
+    d.name: d for d in (TorqueDrive, CurrentDrive, VoltageDrive, CommandDrive)
+}
 """Drive name (the record column it reads) → class."""
 
 

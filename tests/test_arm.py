@@ -94,7 +94,7 @@ def _arm_text(**replace: str) -> str:
         ({"tau_c": "tau_c = { reference = 0.1, lower = 1e-3, upper = 0.2, fixd = true }"},
          "parameters.tau_c.fixd: unknown key; did you mean 'fixed'?"),
         ({"type": 'type = "hydraulic"'}, "drive.type: unknown drive 'hydraulic'; drives: "
-         "['current', 'torque', 'voltage']"),
+         "['command', 'current', 'torque', 'voltage']"),
         ({"type": 'type = "current"'}, "drive.torque_per_amp: missing value"),
         ({"density": "density = 2700.0\nmass = 0.0675"},
          "link.density: give exactly one of density"),

@@ -221,7 +221,8 @@ def test_a_record_holds_any_subset_of_outputs(tmp_path):
     path = write_csv(tmp_path / "v.csv", "time,voltage,root_strain", [r + ",1e-5" for r in rows])
     assert load_record(path).input_name == "voltage"
     path = write_csv(tmp_path / "w.csv", "time,joint_angle", rows)
-    load_error(path, "exactly one input column of ['torque', 'current', 'voltage']; found none")
+    load_error(path, "exactly one input column of ['torque', 'current', 'voltage', 'command']; "
+               "found none")
 
 
 def test_duplicated_column(tmp_path):

@@ -67,7 +67,7 @@ def test_current_drive_scales_the_torque_exactly():
 def test_drive_errors_name_the_setting():
     with pytest.raises(ValueError, match=r"^voltage drive: resistance=0.0 must be a positive"):
         VoltageDrive(**(ROTFLEX | {"resistance": 0.0}))
-    with pytest.raises(ValueError, match=r"unknown drive 'hydraulic'; drives: \['current'"):
+    with pytest.raises(ValueError, match=r"unknown drive 'hydraulic'; drives: \['command', 'cur"):
         get_drive("hydraulic")
     with pytest.raises(ValueError, match=r"current drive: unknown setting\(s\) \['gain'\]"):
         get_drive("current", gain=2.0)

@@ -36,6 +36,7 @@ from jaxflex.simulation import OUTPUT_NAMES, simulate, simulate_batch, simulate_
 
 NAMES = (
     "delay",
+    "drive_gain",
     "gravity",
     "motor_lag",
     "payload",
@@ -47,7 +48,7 @@ NAMES = (
 )
 CHANNEL_EFFECTS = tuple(f"{k}:{c}" for k in ("sensor_gain", "sensor_offset")
                         for c in ("joint_angle", "tip_acceleration", "root_strain"))
-LIBRARY = NAMES[:5] + CHANNEL_EFFECTS + NAMES[7:]
+LIBRARY = NAMES[:6] + CHANNEL_EFFECTS + NAMES[8:]
 TESTBED = Model().testbed
 DT = TESTBED.dt
 
@@ -81,7 +82,8 @@ def test_registry_holds_the_six_effects_with_documented_parameters():
     for cls in EFFECTS.values():
         assert cls.description and cls.signature, cls.name
         for spec in cls.parameters:
-            null = 1.0 if cls.name == "sensor_gain" else 0.0  # a gain vanishes at 1
+            gain = cls.name in ("sensor_gain", "drive_gain")
+            null = 1.0 if gain else 0.0  # a gain vanishes at its reference, 1 by default
             assert spec.null == null and spec.lower <= spec.reference <= spec.upper, spec.name
     assert [s.name for s in Payload().parameters] == ["m_p"]
     assert [s.name for s in Payload(rotary=True).parameters] == ["m_p", "J_p"]
@@ -135,7 +137,8 @@ def test_all_six_at_their_nulls_simulate_exactly_the_base_model(pulse, base_outp
 
 
 def test_composed_effects_vmap_and_reduce_to_the_base_row(pulse, base_outputs):
-    model = Model().with_effects(Payload(), RootCompliance(), Stribeck(), *library()[:3])
+    model = Model().with_effects(Payload(), RootCompliance(), Stribeck(), Delay(), Gravity(),
+                                 MotorLag())
     assert model.space.names[6:] == ("m_p", "c_r", "delta_tau_s", "d", "phi", "T_m")
     null, reference = _with(model), {**_with(model), **model.space.reference()}
     batch = {k: jnp.stack([null[k], reference[k]]) for k in model.space.names}
@@ -374,7 +377,9 @@ def _loss(outputs) -> jnp.ndarray:
 
 
 def test_gradients_at_the_null_are_finite_nonzero_and_match_finite_differences():
-    model = Model().with_effects(*library()[:3], Payload(rotary=True), *library()[4:])
+    model = Model().with_effects(
+        *(Payload(rotary=True) if e.name == "payload" else e for e in library())
+    )
     # steps at 0 and 0.3 s; 0.5 s keeps the joint sliding, where the loss is smooth enough for
     # one-sided differences (after a stop, round-off in the stuck joint makes them noisy)
     torque = jnp.asarray(reference_input("pulse", duration=0.5)[1])
@@ -391,7 +396,7 @@ def test_gradients_at_the_null_are_finite_nonzero_and_match_finite_differences()
     calibrations = {f"{k}_{c}" for k in ("gain", "offset")
                     for c in ("joint_angle", "tip_acceleration", "root_strain")}
     assert set(grads) == {"d", "phi", "T_m", "m_p", "J_p", "c_r", "delta_tau_s", "tau_0",
-                          *calibrations}
+                          "torque_per_unit", *calibrations}
     for name, grad in grads.items():
         step = 1e-3 * model.space[name].lower
         moved = jnp.asarray(nulls[name] + step, dtype=jnp.float64)

@@ -45,7 +45,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument(
         "--max-torque", type=positive_float, required=True, metavar="NM",
         help="peak torque limit (N m); with --arm, the peak of the drive's input in its unit "
-        "(V for a voltage drive, A for a current drive)",
+        "(V for a voltage drive, A for a current drive, the arm file's unit for a command "
+        "drive)",
     )
     p.add_argument(
         "--rms-torque",

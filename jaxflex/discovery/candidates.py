@@ -12,6 +12,7 @@ from jaxtyping import Array, Float
 
 from jaxflex.effects import (
     CALIBRATED_CHANNELS,
+    DriveGain,
     Effect,
     SensorGain,
     SensorOffset,
@@ -119,18 +120,20 @@ def as_candidate(item: str | Effect | Candidate) -> Candidate:
 
 def default_candidates(channels: Iterable[str] | None = None) -> list[str]:
     """The effects discovery tests unless told otherwise: every library effect, with a sensor's
-    gain only on the fitted ``channels`` (all when ``None``) and no sensor offset.
+    gain only on the fitted ``channels`` (all when ``None``), no sensor offset and no drive gain.
 
     A sensor offset is left out because records start at rest and are read re-zeroed there
     (:mod:`jaxflex.measured`): a constant then only soaks up the mean of whatever the model
     misses (on a hidden payload it scored above the payload). Name ``sensor_offset:CHANNEL``
-    to test it on a record whose reading at rest is not zero.
+    to test it on a record whose reading at rest is not zero. A drive gain is a constant of the
+    rig's drive, identified when its arm file gives it bounds (:mod:`jaxflex.arm`), not a
+    missing physical effect; name ``drive_gain`` to test one.
     """
     wanted = None if channels is None else set(channels)
     names = [
         e.name
         for e in library()
-        if not isinstance(e, SensorOffset)
+        if not isinstance(e, (SensorOffset, DriveGain))
         and (wanted is None or getattr(e, "channel", None) in wanted | {None})
     ]
     own = [c for c in channels or () if c not in CALIBRATED_CHANNELS]  # a rig's sensor channels

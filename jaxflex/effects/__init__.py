@@ -16,6 +16,7 @@ import pkgutil
 from jaxflex.effects._base import Effect, Structure, joint_friction
 from jaxflex.effects._channel import CALIBRATED_CHANNELS, ChannelEffect
 from jaxflex.effects.delay import Delay
+from jaxflex.effects.drive_gain import DriveGain
 from jaxflex.effects.gravity import Gravity
 from jaxflex.effects.motor_lag import MotorLag
 from jaxflex.effects.payload import Payload
@@ -98,6 +99,7 @@ __all__ = [
     "EFFECTS",
     "ChannelEffect",
     "Delay",
+    "DriveGain",
     "Effect",
     "Gravity",
     "MotorLag",
