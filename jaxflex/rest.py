@@ -2,7 +2,9 @@
 
 The simulator starts every record from rest, so a window of a logged record must start where
 the arm is still: every sensor channel within its *rest tolerance* for ``span`` seconds
-(:data:`REST_SPAN`) and the input near zero.
+(:data:`REST_SPAN`). The input may already act there (the simulation applies it from the
+window's start); where it switches on, it marks the motion's start more sharply than the
+readings, which leave their bands a little after the arm starts to move.
 
 * :func:`rest_tolerance` (and :func:`rest_band`, which also says why) is the rule: a quantised
   reading may toggle between adjacent levels (2 steps), white noise spans ``±4σ`` (8σ), and an
@@ -14,17 +16,15 @@ the arm is still: every sensor channel within its *rest tolerance* for ``span`` 
 * :func:`why_not_at_rest` says, in one line, why a window does not start at rest (None when it
   does): the channel, how much it changed, the tolerance and its reason, the span and the time.
 * :func:`find_rest` finds where to start a window: at the end of the first stretch of rest
-  that the motion follows, ``span`` before the motion.
+  that a motion follows, ``span`` before the motion.
 
 All take a record's columns as arrays by name and its own time, so that, for a
 :class:`~jaxflex.data.Record` ``r`` and an arm's sensors::
 
     bands = rest_bands(arm.sensors, r)
     channels = {c: r.channel(c) for c in bands}
-    t0 = find_rest(r.time, channels, bands, r.channel(r.input_name), name=r.name,
-                   input_name=r.input_name)
-    problem = why_not_at_rest(r.time, channels, bands, r.channel(r.input_name), name=r.name,
-                              input_name=r.input_name, t0=window_start)
+    t0 = find_rest(r.time, channels, bands, r.channel(r.input_name), name=r.name)
+    problem = why_not_at_rest(r.time, channels, bands, name=r.name, t0=window_start)
 """
 
 from __future__ import annotations
@@ -32,13 +32,16 @@ from __future__ import annotations
 import math
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
-from typing import Protocol
+from typing import TYPE_CHECKING, Protocol
 
 import numpy as np
 from jaxtyping import Float
 from scipy.ndimage import maximum_filter1d, minimum_filter1d
 
 from jaxflex._arguments import finite_float
+
+if TYPE_CHECKING:
+    from jaxflex.data import Record
 
 REST_SPAN = 0.05
 """Seconds of stillness that count as rest at a window's start."""
@@ -50,7 +53,7 @@ once in a thousand spans of 500 samples (``±3σ`` fails one span of 50 samples 
 REST_RANGE_FRACTION = 1e-3
 """Fraction of its reading's range an ideal sensor (no resolution, no noise) may wander."""
 INPUT_FRACTION = 0.01
-"""At rest the input stays within this fraction of its peak (absolute value)."""
+"""The input is on where its absolute value exceeds this fraction of its peak."""
 REST_HINT = (
     "the simulation starts from rest, so start the window where the arm is still "
     "(window=(t0, t1))"
@@ -102,7 +105,7 @@ def rest_tolerance(resolution: float, noise: float, signal_range: float = 0.0) -
     return rest_band(resolution, noise, signal_range).tolerance
 
 
-def rest_bands(sensors: Sequence[_Sensor], record) -> dict[str, RestBand]:
+def rest_bands(sensors: Sequence[_Sensor], record: Record) -> dict[str, RestBand]:
     """The rest band of each sensor whose channel ``record`` holds, by channel."""
     return {
         s.channel: rest_band(
@@ -127,24 +130,22 @@ def why_not_at_rest(
     time: Float[np.ndarray, " n"],
     channels: Mapping[str, Float[np.ndarray, " n"]],
     tolerances: Mapping[str, float | RestBand],
-    input_signal: Float[np.ndarray, " n"] | None = None,
     span: float = REST_SPAN,
     *,
     name: str,
-    input_name: str = "input",
     t0: float | None = None,
 ) -> str | None:
     """None when record ``name`` is at rest for ``span`` s from ``t0`` (its first sample when
-    None), else one line that says why: each channel that changes by more than its tolerance
-    (and the tolerance's reason), or the input when it is not near zero."""
-    time, channels, bands, u, n = _checked(name, time, channels, tolerances, input_signal, span)
+    None), else one line that says why: each channel that changes by more than its tolerance,
+    by how much, and the tolerance's reason."""
+    time, channels, bands, _, n = _checked(name, time, channels, tolerances, None, span)
     start = float(time[0]) if t0 is None else finite_float(t0, "t0")
     first = int(np.searchsorted(time, start - 1e-6 * _step(time)))
     if first >= time.size:
         raise ValueError(
             f"record {name!r}: t0={start!r} s is after its last sample at {float(time[-1])!r} s"
         )
-    reasons = _unrest(channels, bands, u, input_name, slice(first, first + n))
+    reasons = _unrest(channels, bands, slice(first, first + n))
     if not reasons:
         return None
     return (
@@ -161,54 +162,59 @@ def find_rest(
     span: float = REST_SPAN,
     *,
     name: str,
-    input_name: str = "input",
 ) -> float:
     """The time to start a window of record ``name`` at: ``span`` s before its motion begins.
 
     A sample is *still* when it lies in a stretch of at least ``span`` s in which every channel
-    stays within its tolerance (:func:`spread_within`) and the input within ``1e-2`` of its peak
-    (:data:`INPUT_FRACTION`); the motion begins at the first sample after the first still one
-    that is not. The window starts at the last moment that leaves ``span`` s of stillness before
-    the motion, for re-zeroing the readings (:func:`why_not_at_rest` then passes), and takes in
-    all of the motion that follows. It is the rest before the *first* motion: the model starts
-    from rest once, and a later rest would leave out what came before it. A record that starts
-    in motion is taken from the first rest that a motion follows.
+    stays within its tolerance (:func:`spread_within`). The motion begins at the first sample
+    after the first still one that is not, or, when it comes first, where ``input_signal``,
+    off in that stillness, switches on (exceeds :data:`INPUT_FRACTION` of its peak). The window
+    starts at the last moment that leaves ``span`` s of stillness before the motion, for
+    re-zeroing the readings (:func:`why_not_at_rest` then passes), and takes in all of the
+    motion that follows; where the stillness is shorter than that before the input switches
+    on, it starts where the stillness begins.
 
-    Raises a one-line ValueError when the record never rests for ``span`` s before it moves, or
-    never moves.
+    It is the rest before the *first* motion: the model starts from rest once, and a later rest
+    would leave out what came before it. A record that starts in motion is taken from the first
+    rest that a motion follows. Raises a one-line ValueError when the record never rests for
+    ``span`` s before it moves, or never moves.
     """
     time, channels, bands, u, n = _checked(name, time, channels, tolerances, input_signal, span)
     never = f"record {name!r} is never at rest for {span:g} s before it moves"
     if time.size < n:
         raise ValueError(f"{never}: it lasts {_time(float(time[-1] - time[0]))} s")
-    still = np.ones(time.size - n + 1, dtype=bool)
+    still = np.ones(time.size - n + 1, dtype=bool)  # by the first of n samples
     for c, y in channels.items():
         top, bottom = _sliding(maximum_filter1d, y, n), _sliding(minimum_filter1d, y, n)
         still &= _within(top - bottom, bands[c].tolerance, np.maximum(abs(top), abs(bottom)))
-    if u is not None:
-        still &= _sliding(maximum_filter1d, np.abs(u), n) <= INPUT_FRACTION * np.max(np.abs(u))
-    covered = np.cumsum(np.concatenate([still, np.zeros(n - 1, dtype=bool)]).astype(np.int64))
-    covered[n:] -= covered[:-n].copy()
-    quiet = covered > 0  # sample i lies in a still stretch of n samples
-    if not quiet.any():
-        reasons = _unrest(channels, bands, u, input_name, slice(0, n))
+    if not still.any():
         raise ValueError(
             f"{never}: from its first sample at t = {_time(float(time[0]))} s "
-            f"{' and '.join(reasons)} in the first {span:g} s; {REST_HINT}"
+            f"{' and '.join(_unrest(channels, bands, slice(0, n)))} in the first {span:g} s; "
+            f"{REST_HINT}"
         )
-    first = int(np.argmax(quiet))
-    moving = np.flatnonzero(~quiet[first:])
+    first = int(np.argmax(still))
+    covered = np.cumsum(np.concatenate([still, np.zeros(n - 1, dtype=bool)]).astype(np.int64))
+    covered[n:] -= covered[:-n].copy()
+    moving = np.flatnonzero(covered[first:] == 0)  # samples in no still stretch
     if moving.size == 0:
         if first == 0:
             raise ValueError(
-                f"record {name!r} never moves: every channel stays within its rest tolerance"
-                f"{'' if u is None else f' and {input_name!r} near zero'} from start to end"
+                f"record {name!r} never moves: every channel stays within its rest tolerance "
+                "from start to end"
             )
         raise ValueError(
             f"{never}: it rests only from t = {_time(float(time[first]))} s to its end; "
             f"{REST_HINT}"
         )
-    return float(time[first + int(moving[0]) - n])
+    motion = first + int(moving[0])
+    if u is not None:
+        on = np.abs(u[first:motion]) > INPUT_FRACTION * np.max(np.abs(u))
+        off = np.flatnonzero(~on)  # a drive may still be on as the readings settle
+        switch = np.flatnonzero(on[off[0] :]) if off.size else off
+        motion = first + int(off[0]) + int(switch[0]) if switch.size else motion
+    latest = np.flatnonzero(still[first : max(first, motion - n) + 1])
+    return float(time[first + int(latest[-1])])
 
 
 def _within(spread, tolerance: float, magnitude):
@@ -222,8 +228,8 @@ def _sliding(filter1d, y: np.ndarray, n: int) -> np.ndarray:
     return filter1d(y, size=n, mode="nearest")[n // 2 : n // 2 + y.size - n + 1]
 
 
-def _unrest(channels, bands, u, input_name: str, cut: slice) -> list[str]:
-    """Why the samples ``cut`` are not at rest, one phrase per channel (and the input)."""
+def _unrest(channels, bands, cut: slice) -> list[str]:
+    """Why the samples ``cut`` are not at rest, one phrase per channel that moves."""
     reasons = []
     for c, y in channels.items():
         band = bands[c]
@@ -232,13 +238,6 @@ def _unrest(channels, bands, u, input_name: str, cut: slice) -> list[str]:
             reasons.append(
                 f"{c!r} changes by {_amount(float(np.ptp(y[cut])), band.unit)} (rest tolerance "
                 f"{_amount(band.tolerance, band.unit)}{why})"
-            )
-    if u is not None:
-        peak, reach = float(np.max(np.abs(u))), float(np.max(np.abs(u[cut])))
-        if reach > INPUT_FRACTION * peak:
-            reasons.append(
-                f"{input_name!r} reaches {reach:.3g} (at rest it stays within {INPUT_FRACTION:g} "
-                f"of its peak {peak:.3g})"
             )
     return reasons
 

@@ -136,7 +136,6 @@ def resolve_window(
         t0 = find_rest(
             record.time, {c: record.channel(c) for c in bands}, bands,
             record.channel(record.input_name), span, name=record.name,
-            input_name=record.input_name,
         )
     except ValueError as err:
         message = str(err).replace("window=(t0, t1)", f"--window {record.name}=T0:T1")
