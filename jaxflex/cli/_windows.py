@@ -113,8 +113,11 @@ def check_window(
         raise UsageError(f"{spans}; is the window in ms? times are in seconds")
     if lo >= t_end or hi <= t_start:
         raise UsageError(f"{spans}; the window lies {'after' if lo >= t_end else 'before'} it")
-    ends = [f"starts before it (use T0 >= {_seconds(t_start)}, or leave T0 out)"] * starts_before
-    ends += [f"ends after it (use T1 <= {_seconds(t_end)}, or leave T1 out)"] * ends_after
+    ends = []
+    if starts_before:
+        ends.append(f"starts before it (use T0 >= {_seconds(t_start)}, or leave T0 out)")
+    if ends_after:
+        ends.append(f"ends after it (use T1 <= {_seconds(t_end)}, or leave T1 out)")
     raise UsageError(f"{spans}; the window {' and '.join(ends)}")
 
 
