@@ -1,0 +1,297 @@
+"""Rest: how far a still sensor's reading may wander, and where a record is at rest.
+
+The simulator starts every record from rest, so a window of a logged record must start where
+the arm is still: every sensor channel within its *rest tolerance* for ``span`` seconds
+(:data:`REST_SPAN`). The input may already act there (the simulation applies it from the
+window's start); where it switches on, it marks the motion's start more sharply than the
+readings, which leave their bands a little after the arm starts to move.
+
+* :func:`rest_tolerance` (and :func:`rest_band`, which also says why) is the rule: a quantised
+  reading may toggle between adjacent levels (2 steps), white noise spans ``±4σ`` (8σ), and an
+  ideal sensor (no resolution, no noise) gets ``1e-3`` of its reading's range;
+  :func:`rest_bands` applies it to the sensors of an arm (anything with ``channel``,
+  ``resolution``, ``noise`` and ``unit``) on one record.
+* :func:`spread_within` compares a peak-to-peak spread with a tolerance, immune to float
+  rounding (``0.406 − 0.404`` is within ``0.002``).
+* :func:`why_not_at_rest` says, in one line, why a window does not start at rest (None when it
+  does): the channel, how much it changed, the tolerance and its reason, the span and the time.
+* :func:`find_rest` finds where to start a window: at the end of the first stretch of rest
+  that a motion follows, ``span`` before the motion.
+
+All take a record's columns as arrays by name and its own time, so that, for a
+:class:`~jaxflex.data.Record` ``r`` and an arm's sensors::
+
+    bands = rest_bands(arm.sensors, r)
+    channels = {c: r.channel(c) for c in bands}
+    t0 = find_rest(r.time, channels, bands, r.channel(r.input_name), name=r.name)
+    problem = why_not_at_rest(r.time, channels, bands, name=r.name, t0=window_start)
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
+from typing import TYPE_CHECKING, Protocol
+
+import numpy as np
+from jaxtyping import Float
+from scipy.ndimage import maximum_filter1d, minimum_filter1d
+
+from jaxflex._arguments import finite_float
+
+if TYPE_CHECKING:
+    from jaxflex.data import Record
+
+REST_SPAN = 0.05
+"""Seconds of stillness that count as rest at a window's start."""
+REST_STEPS = 2
+"""Quantisation steps a still reading may span: it can toggle across a level boundary."""
+REST_SIGMAS = 8.0
+"""Noise standard deviations a still reading may span: ``±4σ``, which white noise leaves about
+once in a thousand spans of 500 samples (``±3σ`` fails one span of 50 samples in 50)."""
+REST_RANGE_FRACTION = 1e-3
+"""Fraction of its reading's range an ideal sensor (no resolution, no noise) may wander."""
+INPUT_FRACTION = 0.01
+"""The input is on where its absolute value exceeds this fraction of its peak."""
+REST_HINT = (
+    "the simulation starts from rest, so start the window where the arm is still "
+    "(window=(t0, t1))"
+)
+"""How a rest message ends; a command line replaces ``window=(t0, t1)`` by its option."""
+_RELATIVE_SLACK = 1e-9
+_ULPS = 8
+
+
+@dataclass(frozen=True)
+class RestBand:
+    """A channel's rest tolerance (peak-to-peak, in its ``unit``) and the reason for it."""
+
+    tolerance: float
+    reason: str = ""
+    unit: str = ""
+
+
+class _Sensor(Protocol):
+    channel: str
+    resolution: float
+    noise: float
+    unit: str
+
+
+def rest_band(
+    resolution: float, noise: float, signal_range: float = 0.0, unit: str = ""
+) -> RestBand:
+    """The rest tolerance of a sensor of ``resolution`` (quantisation step) and white ``noise``
+    (standard deviation), and its reason: ``2·resolution + 8·noise``; for an ideal sensor
+    (both 0) ``1e-3 · signal_range``, the peak-to-peak of its whole reading."""
+    q = finite_float(resolution, "resolution", minimum=0.0)
+    sigma = finite_float(noise, "noise", minimum=0.0)
+    if q == 0 and sigma == 0:
+        span = finite_float(signal_range, "signal_range", minimum=0.0)
+        return RestBand(
+            REST_RANGE_FRACTION * span,
+            f"{REST_RANGE_FRACTION:g} of the reading's range {_amount(span, unit)}, "
+            "an ideal sensor",
+            unit,
+        )
+    parts = [f"{REST_STEPS} steps of {_amount(q, unit)}"] if q else []
+    parts += [f"{REST_SIGMAS:g}σ, σ = {_amount(sigma, unit)}"] if sigma else []
+    return RestBand(REST_STEPS * q + REST_SIGMAS * sigma, " + ".join(parts), unit)
+
+
+def rest_tolerance(resolution: float, noise: float, signal_range: float = 0.0) -> float:
+    """How far (peak-to-peak) a still sensor's reading may wander: :func:`rest_band`'s rule."""
+    return rest_band(resolution, noise, signal_range).tolerance
+
+
+def rest_bands(sensors: Sequence[_Sensor], record: Record) -> dict[str, RestBand]:
+    """The rest band of each sensor whose channel ``record`` holds, by channel."""
+    return {
+        s.channel: rest_band(
+            s.resolution, s.noise, float(np.ptp(record.channel(s.channel))), s.unit
+        )
+        for s in sensors
+        if s.channel in record.columns
+    }
+
+
+def spread_within(values: Float[np.ndarray, " n"], tolerance: float) -> bool:
+    """True when the peak-to-peak of ``values`` is within ``tolerance``, with a slack of
+    ``1e-9`` of the tolerance and 8 ulps of the values' magnitude for float rounding."""
+    v = np.asarray(values, dtype=np.float64)
+    if v.size == 0:
+        raise ValueError("spread_within: values is empty")
+    top, bottom = float(np.max(v)), float(np.min(v))
+    return bool(_within(top - bottom, tolerance, max(abs(top), abs(bottom))))
+
+
+def why_not_at_rest(
+    time: Float[np.ndarray, " n"],
+    channels: Mapping[str, Float[np.ndarray, " n"]],
+    tolerances: Mapping[str, float | RestBand],
+    span: float = REST_SPAN,
+    *,
+    name: str,
+    t0: float | None = None,
+) -> str | None:
+    """None when record ``name`` is at rest for ``span`` s from ``t0`` (its first sample when
+    None), else one line that says why: each channel that changes by more than its tolerance,
+    by how much, and the tolerance's reason."""
+    time, channels, bands, _, n = _checked(name, time, channels, tolerances, None, span)
+    start = float(time[0]) if t0 is None else finite_float(t0, "t0")
+    first = int(np.searchsorted(time, start - 1e-6 * _step(time)))
+    if first >= time.size:
+        raise ValueError(
+            f"record {name!r}: t0={start!r} s is after its last sample at {float(time[-1])!r} s"
+        )
+    reasons = _unrest(channels, bands, slice(first, first + n))
+    if not reasons:
+        return None
+    return (
+        f"record {name!r} does not start at rest at t = {_time(float(time[first]))} s: "
+        f"{' and '.join(reasons)} in the first {span:g} s; {REST_HINT}"
+    )
+
+
+def find_rest(
+    time: Float[np.ndarray, " n"],
+    channels: Mapping[str, Float[np.ndarray, " n"]],
+    tolerances: Mapping[str, float | RestBand],
+    input_signal: Float[np.ndarray, " n"] | None = None,
+    span: float = REST_SPAN,
+    *,
+    name: str,
+) -> float:
+    """The time to start a window of record ``name`` at: ``span`` s before its motion begins.
+
+    A sample is *still* when it lies in a stretch of at least ``span`` s in which every channel
+    stays within its tolerance (:func:`spread_within`). The motion begins at the first sample
+    after the first still one that is not, or, when it comes first, where ``input_signal``,
+    off in that stillness, switches on (exceeds :data:`INPUT_FRACTION` of its peak). The window
+    starts at the last moment that leaves ``span`` s of stillness before the motion, for
+    re-zeroing the readings (:func:`why_not_at_rest` then passes), and takes in all of the
+    motion that follows; where the stillness is shorter than that before the input switches
+    on, it starts where the stillness begins.
+
+    It is the rest before the *first* motion: the model starts from rest once, and a later rest
+    would leave out what came before it. A record that starts in motion is taken from the first
+    rest that a motion follows. Raises a one-line ValueError when the record never rests for
+    ``span`` s before it moves, or never moves.
+    """
+    time, channels, bands, u, n = _checked(name, time, channels, tolerances, input_signal, span)
+    never = f"record {name!r} is never at rest for {span:g} s before it moves"
+    if time.size < n:
+        raise ValueError(f"{never}: it lasts {_time(float(time[-1] - time[0]))} s")
+    still = np.ones(time.size - n + 1, dtype=bool)  # by the first of n samples
+    for c, y in channels.items():
+        top, bottom = _sliding(maximum_filter1d, y, n), _sliding(minimum_filter1d, y, n)
+        still &= _within(top - bottom, bands[c].tolerance, np.maximum(abs(top), abs(bottom)))
+    if not still.any():
+        raise ValueError(
+            f"{never}: from its first sample at t = {_time(float(time[0]))} s "
+            f"{' and '.join(_unrest(channels, bands, slice(0, n)))} in the first {span:g} s; "
+            f"{REST_HINT}"
+        )
+    first = int(np.argmax(still))
+    covered = np.cumsum(np.concatenate([still, np.zeros(n - 1, dtype=bool)]).astype(np.int64))
+    covered[n:] -= covered[:-n].copy()
+    moving = np.flatnonzero(covered[first:] == 0)  # samples in no still stretch
+    if moving.size == 0:
+        if first == 0:
+            raise ValueError(
+                f"record {name!r} never moves: every channel stays within its rest tolerance "
+                "from start to end"
+            )
+        raise ValueError(
+            f"{never}: it rests only from t = {_time(float(time[first]))} s to its end; "
+            f"{REST_HINT}"
+        )
+    motion = first + int(moving[0])
+    if u is not None:
+        on = np.abs(u[first:motion]) > INPUT_FRACTION * np.max(np.abs(u))
+        off = np.flatnonzero(~on)  # a drive may still be on as the readings settle
+        switch = np.flatnonzero(on[off[0] :]) if off.size else off
+        motion = first + int(off[0]) + int(switch[0]) if switch.size else motion
+    latest = np.flatnonzero(still[first : max(first, motion - n) + 1])
+    return float(time[first + int(latest[-1])])
+
+
+def _within(spread, tolerance: float, magnitude):
+    """``spread <= tolerance`` up to float rounding (see :func:`spread_within`)."""
+    eps = np.finfo(np.float64).eps
+    return spread <= tolerance * (1 + _RELATIVE_SLACK) + _ULPS * eps * magnitude
+
+
+def _sliding(filter1d, y: np.ndarray, n: int) -> np.ndarray:
+    """``filter1d`` (max or min) over every run of ``n`` samples, by its first sample."""
+    return filter1d(y, size=n, mode="nearest")[n // 2 : n // 2 + y.size - n + 1]
+
+
+def _unrest(channels, bands, cut: slice) -> list[str]:
+    """Why the samples ``cut`` are not at rest, one phrase per channel that moves."""
+    reasons = []
+    for c, y in channels.items():
+        band = bands[c]
+        if not spread_within(y[cut], band.tolerance):
+            why = f": {band.reason}" if band.reason else ""
+            reasons.append(
+                f"{c!r} changes by {_amount(float(np.ptp(y[cut])), band.unit)} (rest tolerance "
+                f"{_amount(band.tolerance, band.unit)}{why})"
+            )
+    return reasons
+
+
+def _checked(name, time, channels, tolerances, input_signal, span):
+    """The arguments as float64 arrays and rest bands, and the samples in ``span``; a problem
+    is a one-line ValueError naming the record and the argument."""
+    where = f"record {name!r}"
+    span = finite_float(span, "span", minimum=0.0, strict=True)
+    t = np.asarray(time, dtype=np.float64)
+    if t.ndim != 1 or t.size < 2:
+        raise ValueError(f"{where}: time must be 1-D with at least 2 samples, got {t.shape}")
+    if not channels:
+        raise ValueError(f"{where}: no channels to check for rest")
+    arrays = {c: _column(where, c, y, t.size) for c, y in channels.items()}
+    missing = [c for c in arrays if c not in tolerances]
+    if missing:
+        raise ValueError(f"{where}: no rest tolerance for channel(s) {missing}")
+    bands = {c: _band(where, c, tolerances[c]) for c in arrays}
+    u = None if input_signal is None else _column(where, "input", input_signal, t.size)
+    n = max(2, math.ceil(span / _step(t) - 1e-6) + 1)
+    return t, arrays, bands, u, n
+
+
+def _column(where: str, name: str, values, size: int) -> np.ndarray:
+    y = np.asarray(values, dtype=np.float64)
+    if y.shape != (size,):
+        raise ValueError(f"{where}: {name!r} has shape {y.shape}; time has {size} samples")
+    if not np.all(np.isfinite(y)):
+        raise ValueError(f"{where}: {name!r} holds values that are not finite")
+    return y
+
+
+def _band(where: str, channel: str, tolerance: float | RestBand) -> RestBand:
+    band = tolerance if isinstance(tolerance, RestBand) else RestBand(tolerance)
+    try:
+        finite_float(band.tolerance, "tolerance", minimum=0.0)
+    except ValueError as err:
+        raise ValueError(f"{where}: channel {channel!r}: rest {err}") from None
+    return band
+
+
+def _step(time: np.ndarray) -> float:
+    return float(time[-1] - time[0]) / (time.size - 1)
+
+
+def _amount(value: float, unit: str) -> str:
+    """``value`` to 3 digits with its unit ('1', dimensionless, is left out)."""
+    return f"{value:.3g}" if unit in ("", "1") else f"{value:.3g} {unit}"
+
+
+def _time(t: float) -> str:
+    return f"{t:.6g}"
+
+
+__all__ = ["INPUT_FRACTION", "REST_HINT", "REST_SPAN", "RestBand", "find_rest", "rest_band",
+           "rest_bands", "rest_tolerance", "spread_within", "why_not_at_rest"]
