@@ -125,8 +125,9 @@ def _initialize(processes: int | None, process_id: int | None, coordinator: str 
     joiner.start()
     joiner.join(peer_timeout)
     if joiner.is_alive():
+        size = f" of {processes} processes" if processes else ""
         raise PeerTimeout(
-            f"the group of {processes or '?'} processes did not form within {peer_timeout:g} s "
+            f"the group{size} did not form within {peer_timeout:g} s "
             f"(coordinator {address}): a process has not started or cannot reach the "
             "coordinator; start every process with the same --processes and --coordinator, "
             "or wait longer with --peer-timeout SECONDS"

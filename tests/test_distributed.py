@@ -331,3 +331,11 @@ def test_settings_that_describe_no_group_are_refused(tmp_path, record, capsys, o
     assert main(["study", record, *options, "--out", str(tmp_path / "s.json")]) == 2
     assert capsys.readouterr().err == f"jaxflex study: error: {message}\n"
     assert not (tmp_path / "s.json").exists()
+
+
+def test_identify_refuses_plot_with_arm_before_any_process_starts(tmp_path, record, capsys):
+    arm = os.path.join(os.path.dirname(__file__), "..", "arms", "quanser_rotflex.toml")
+    assert main(["identify", record, "--arm", arm, "--plot", str(tmp_path / "f.png"),
+                 "--processes", "2", "--out", str(tmp_path / "fit.json")]) == 2
+    error = capsys.readouterr().err
+    assert error == "jaxflex identify: error: --plot is not available with --arm\n"

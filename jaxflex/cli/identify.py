@@ -69,12 +69,12 @@ def run(args: argparse.Namespace) -> int:
     from jaxflex.distributed import is_main
     from jaxflex.identification import identify
 
+    if args.arm is not None and args.plot is not None:
+        raise UsageError("--plot is not available with --arm")
     if (status := enter(args)) is not None:
         return status
     found = arm_of(args)
     if found is not None:
-        if args.plot is not None:
-            raise UsageError("--plot is not available with --arm")
         return identify_with_arm(args, *found)
     records = load_rig_records(args.data, args)
     out, *plot = check_outputs(
