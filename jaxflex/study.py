@@ -26,8 +26,9 @@ from jaxflex.identification import Fit, check_method, identify
 from jaxflex.model import Model
 from jaxflex.objective import Records, as_dataset
 
-STUDY_FORMAT = "jaxflex-study/1"
-"""Format tag written into study files; bumped when their layout changes."""
+STUDY_FORMAT = "jaxflex-study/2"
+"""Format tag written into study files; bumped when their layout changes (2: the summary's wall
+times moved under ``"timing"``)."""
 
 
 @dataclass(frozen=True)
@@ -126,14 +127,19 @@ class Study:
         return "\n".join(lines) + "\n"
 
     def to_dict(self) -> dict[str, Any]:
+        """The study as JSON contents; the wall times, which differ between identical studies,
+        are kept only under ``"timing"`` (per method, as in each run)."""
+        summary = self.summary()
+        timing = {m: {"wall_time": summary[m].pop("wall_time")} for m in summary}
         return to_jsonable(
             {
                 "format": STUDY_FORMAT,
                 "names": self.names,
                 "record_names": self.record_names,
                 "settings": self.settings,
-                "summary": self.summary(),
+                "summary": summary,
                 "runs": [r.to_dict() for r in self.runs],
+                "timing": timing,
                 "provenance": self.provenance,
             }
         )

@@ -8,6 +8,9 @@ import functools
 import http.server
 import os
 import shutil
+import socket
+import subprocess
+import sys
 import threading
 from pathlib import Path
 
@@ -17,7 +20,6 @@ import pytest
 import jaxflex.datasets as datasets
 from jaxflex.cli import main
 from jaxflex.data import load_record
-from jaxflex.datasets import _source
 
 
 def _local_copy() -> str | None:
@@ -144,7 +146,7 @@ def mirror(tmp_path, monkeypatch):
     server = http.server.ThreadingHTTPServer(("127.0.0.1", 0), handler)
     thread = threading.Thread(target=server.serve_forever, daemon=True)
     thread.start()
-    monkeypatch.setattr(_source, "RAW_URL", f"http://127.0.0.1:{server.server_address[1]}")
+    monkeypatch.setenv(datasets.URL_VARIABLE, f"http://127.0.0.1:{server.server_address[1]}/")
     monkeypatch.setenv(datasets.CACHE_DIR_VARIABLE, str(tmp_path / "cache"))
     monkeypatch.delenv(datasets.DATA_DIR_VARIABLE, raising=False)
     yield root
@@ -203,6 +205,81 @@ def test_cli_list_and_get(rotflex, tmp_path, capsys, monkeypatch):
             np.testing.assert_array_equal(again.channel(column), record.channel(column))
     capsys.readouterr()
     assert main(args) == 2
-    assert "square_wave.csv: exists" in capsys.readouterr().err
+    assert capsys.readouterr().err == (
+        f"jaxflex datasets: error: {tmp_path / 'd' / 'square_wave.csv'}: file exists; pass "
+        "--overwrite to replace it\n"
+    )
     assert main(["datasets", "get", "nope", "--out", str(tmp_path)]) == 2
     assert "unknown data set 'nope'" in capsys.readouterr().err
+
+
+def data_dir_option() -> list[str]:
+    return ["--data-dir", REAL_DATA_DIR] if REAL_DATA_DIR else []
+
+
+@pytest.mark.parametrize("obstacle", ["directory", "dangling link"])
+@pytest.mark.parametrize("blocked", ["square_wave", "random_985"])
+def test_get_checks_every_file_before_it_writes_any(rotflex, tmp_path, capsys, obstacle,
+                                                    blocked):
+    assert list(rotflex) == ["square_wave", "random_985"]  # the order they are written in
+    out = tmp_path / "d"
+    out.mkdir()
+    target = out / f"{blocked}.csv"
+    if obstacle == "directory":
+        target.mkdir()
+    else:
+        target.symlink_to(tmp_path / "nowhere" / "x.csv")
+    assert main(["datasets", "get", "quanser_rotflex", "--out", str(out),
+                 *data_dir_option()]) == 2
+    why = ("is a directory; give a file name inside it" if obstacle == "directory"
+           else "file exists; pass --overwrite to replace it")
+    assert capsys.readouterr().err == f"jaxflex datasets: error: {target}: {why}\n"
+    assert os.listdir(out) == [target.name]  # nothing was written beside it
+    assert not (tmp_path / "nowhere").exists()
+
+
+def test_get_refuses_an_empty_out(tmp_path, capsys, monkeypatch):
+    monkeypatch.chdir(tmp_path)
+    assert main(["datasets", "get", "quanser_rotflex", "--out", "", *data_dir_option()]) == 2
+    assert capsys.readouterr().err == (
+        "jaxflex datasets: error: --out '': names no folder; give the folder for the record "
+        "files\n"
+    )
+    assert os.listdir(tmp_path) == []
+    with pytest.raises(datasets.DatasetError, match="^out='' names no folder; give the folder"):
+        datasets.write("quanser_rotflex", "")
+
+
+def closed_port() -> int:
+    """A TCP port on 127.0.0.1 that nothing listens on (bound, then released)."""
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def test_a_failed_download_is_one_line_and_leaves_nothing(tmp_path, monkeypatch):
+    monkeypatch.setenv(datasets.URL_VARIABLE, f"http://127.0.0.1:{closed_port()}")
+    monkeypatch.setenv(datasets.CACHE_DIR_VARIABLE, str(tmp_path / "cache"))
+    monkeypatch.delenv(datasets.DATA_DIR_VARIABLE, raising=False)
+    done = subprocess.run(
+        [sys.executable, "-m", "jaxflex", "datasets", "get", "daisy_robot_arm", "--out",
+         str(tmp_path / "d")], capture_output=True, text=True, timeout=120,
+    )
+    source = datasets.DATASETS["daisy_robot_arm"].source
+    first = next(iter(source.files))
+    assert (done.returncode, done.stdout) == (2, "")
+    assert done.stderr == (
+        f"jaxflex datasets: error: daisy_robot_arm: cannot download {source.url(first)} "
+        "(ConnectionError); set JAXFLEX_DATA_DIR (or pass data_dir) to a local copy laid out "
+        f"as <folder>/daisy_robot_arm/{first}\n"
+    )
+    assert os.listdir(tmp_path) == []  # no cache folder, no output folder
+
+
+def test_a_mirror_replaces_the_upstream_host(monkeypatch):
+    source = datasets.DATASETS["quanser_rotflex"].source
+    monkeypatch.setenv(datasets.URL_VARIABLE, "http://127.0.0.1:1/mirror/")
+    for file, (upstream, _) in source.files.items():
+        assert source.url(file) == (
+            f"http://127.0.0.1:1/mirror/{source.repository}/{source.commit}/{upstream}"
+        )

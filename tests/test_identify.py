@@ -410,6 +410,6 @@ def test_study_table_and_cli(clean, tmp_path, capsys):
     assert main(argv) == 0
     assert "DE (2 seeds)" in capsys.readouterr().out
     data = json.loads(out.read_text())
-    assert data["format"] == "jaxflex-study/1" and len(data["runs"]) == 2
+    assert data["format"] == "jaxflex-study/2" and len(data["runs"]) == 2
     assert data["runs"][0]["params"] == pytest.approx(study.runs[0].params)  # same seed, same run
     assert (tmp_path / "curves.png").stat().st_size > 1000

@@ -3,6 +3,9 @@
 The original files come from ``--data-dir`` (or ``JAXFLEX_DATA_DIR``), a folder laid out as
 ``<folder>/<data set>/<file>``, or else from their pinned upstream URLs into the user cache; each
 is checked against its SHA-256 and converted to record CSVs (see :mod:`jaxflex.datasets`).
+``JAXFLEX_DATA_URL`` names a mirror of raw.githubusercontent.com to download from. Every record
+file is checked before anything is fetched, and they are written together or not at all; a failed
+download is one line and leaves nothing in the cache.
 """
 
 from __future__ import annotations
@@ -48,6 +51,8 @@ def run_list(args: argparse.Namespace) -> int:
 def run_get(args: argparse.Namespace) -> int:
     from jaxflex.datasets import DatasetError, write
 
+    if not args.out:
+        raise UsageError("--out '': names no folder; give the folder for the record files")
     try:
         paths = write(args.name, args.out, args.data_dir, overwrite=args.overwrite)
     except DatasetError as err:

@@ -3,8 +3,10 @@
 Each data set is one module here: its :class:`Source` (repository, pinned commit, files with
 SHA-256, licence) and a converter from the original files to jaxflex records. The files come from
 a local folder (``data_dir=`` or ``JAXFLEX_DATA_DIR``, laid out as ``<folder>/<data set>/<file>``)
-or, failing that, from the pinned upstream URLs into a user cache (pooch); either way every file
-is checked against its hash. Records carry their source, licence and citation in ``metadata``::
+or, failing that, from the pinned upstream URLs (or the mirror ``JAXFLEX_DATA_URL`` names) into
+a user cache (pooch); either way every file is checked against its hash. :func:`write` checks
+every file it will write before it fetches anything, and writes all of them or none. Records
+carry their source, licence and citation in ``metadata``::
 
     records = jaxflex.datasets.load("quanser_rotflex")  # {"square_wave": ..., "random_985": ...}
 """
@@ -16,11 +18,13 @@ from dataclasses import dataclass
 from pathlib import Path
 from types import ModuleType
 
+from jaxflex._io import all_or_nothing, check_writable
 from jaxflex.data import Record, save_record
 from jaxflex.datasets import daisy_robot_arm, quanser_2dsfl, quanser_rotflex
 from jaxflex.datasets._source import (
     CACHE_DIR_VARIABLE,
     DATA_DIR_VARIABLE,
+    URL_VARIABLE,
     DatasetError,
     DataUnavailable,
     Source,
@@ -79,15 +83,17 @@ def write(
     *,
     overwrite: bool = False,
 ) -> list[Path]:
-    """Write each record of ``name`` as ``out/<record>.csv`` (atomic; existing files refused)."""
-    records = load(name, data_dir)
+    """Write each record of ``name`` as ``out/<record>.csv``: every file is checked first (an
+    existing one is refused unless ``overwrite``), before anything is fetched, and the files
+    appear together, or none of them."""
+    module = _module(name)
+    if not os.fspath(out):
+        raise DatasetError("out='' names no folder; give the folder for the record files")
     out = Path(out)
-    targets = {r: out / f"{r}.csv" for r in records}
-    existing = [str(p) for p in targets.values() if p.exists()]
-    if existing and not overwrite:
-        raise FileExistsError(f"{existing[0]}: exists; remove it or allow overwriting")
-    out.mkdir(parents=True, exist_ok=True)
-    return [save_record(records[r], p, overwrite=overwrite) for r, p in targets.items()]
+    targets = {r: check_writable(out / f"{r}.csv", overwrite) for r in module.RECORDS}
+    records = load(name, data_dir)
+    with all_or_nothing():
+        return [save_record(records[r], p, overwrite=overwrite) for r, p in targets.items()]
 
 
 __all__ = [
@@ -98,6 +104,7 @@ __all__ = [
     "DatasetError",
     "DatasetInfo",
     "Source",
+    "URL_VARIABLE",
     "available",
     "cache_dir",
     "fetch",

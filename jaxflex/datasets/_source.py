@@ -7,6 +7,10 @@ commits none of them. :func:`fetch_files` looks in this order:
    ``JAXFLEX_DATA_DIR`` environment variable), each file checked against its hash;
 2. otherwise pooch's user cache (``JAXFLEX_CACHE_DIR`` or the platform's cache folder), filled
    from the pinned upstream URL on first use and checked against the same hash.
+
+The upstream URLs are those of raw.githubusercontent.com; ``JAXFLEX_DATA_URL`` names a mirror
+laid out the same way (``<mirror>/<repository>/<commit>/<path>``). A download that fails leaves
+nothing in the cache (no file, no empty folder) and is reported as one :class:`DataUnavailable`.
 """
 
 from __future__ import annotations
@@ -18,8 +22,9 @@ from urllib.parse import quote
 
 DATA_DIR_VARIABLE = "JAXFLEX_DATA_DIR"
 CACHE_DIR_VARIABLE = "JAXFLEX_CACHE_DIR"
+URL_VARIABLE = "JAXFLEX_DATA_URL"
 RAW_URL = "https://raw.githubusercontent.com"
-"""Where GitHub serves a file of a repository at a commit."""
+"""Where GitHub serves a file of a repository at a commit (``$JAXFLEX_DATA_URL`` replaces it)."""
 
 
 class DatasetError(ValueError):
@@ -48,9 +53,11 @@ class Source:
     description: str
 
     def url(self, file: str) -> str:
-        """The raw-file URL of ``file`` at the pinned commit (spaces etc. URL-encoded)."""
+        """The raw-file URL of ``file`` at the pinned commit (spaces etc. URL-encoded), on
+        ``$JAXFLEX_DATA_URL`` if set."""
         path = quote(self.files[file][0])
-        return f"{RAW_URL}/{self.repository}/{self.commit}/{path}"
+        base = (os.environ.get(URL_VARIABLE) or RAW_URL).rstrip("/")
+        return f"{base}/{self.repository}/{self.commit}/{path}"
 
     def sha256(self, file: str) -> str:
         """The SHA-256 of ``file`` (hex)."""
@@ -108,24 +115,45 @@ def _verified(path: Path, sha256: str) -> Path:
 
 
 def _download(source: Source, file: str) -> Path:
-    """The cached copy of ``file``, downloaded from its pinned URL on first use."""
+    """The cached copy of ``file``, downloaded from its pinned URL on first use; a failed
+    download leaves no folder it made behind, and pooch says nothing (the error says it all)."""
+    import logging
+
     import pooch
 
+    folder = cache_dir() / source.name
+    made = [d for d in (folder, *folder.parents) if not d.exists()]
+    logger = pooch.get_logger()
+    level = logger.level
+    logger.setLevel(logging.WARNING)  # not "Downloading data from ..." before the one line
     try:
         return Path(
             pooch.retrieve(
                 source.url(file),
                 known_hash=f"sha256:{source.sha256(file)}",
                 fname=file,
-                path=cache_dir() / source.name,
+                path=folder,
                 progressbar=False,
             )
         )
     except ValueError as err:  # pooch's hash mismatch
+        _remove_empty(made)
         raise DatasetError(f"{source.url(file)}: {err}") from None
     except OSError as err:  # no network, HTTP errors (requests' errors are OSErrors)
+        _remove_empty(made)
         raise DataUnavailable(
             f"{source.name}: cannot download {source.url(file)} ({type(err).__name__}); "
             f"set {DATA_DIR_VARIABLE} (or pass data_dir) to a local copy laid out as "
             f"<folder>/{source.name}/{file}"
         ) from None
+    finally:
+        logger.setLevel(level)
+
+
+def _remove_empty(folders: list[Path]) -> None:
+    """Remove the folders (innermost first) that are still empty."""
+    for folder in folders:
+        try:
+            folder.rmdir()
+        except OSError:  # not empty, or gone: leave it
+            return
