@@ -24,20 +24,12 @@ from jaxflex.diagnosis import NoiseLevel
 from jaxflex.metrics import nrmse
 from jaxflex.model import Model
 from jaxflex.objective import check_inputs, fitted_channels
+from jaxflex.rest import REST_SPAN, rest_bands, why_not_at_rest
 from jaxflex.sensors import Sensor, calibrated, readings
 from jaxflex.simulation import simulate
 
-REST_SPAN = 0.05
-"""Seconds of stillness that count as rest at a window's start."""
-
 Window = tuple[float, float] | None
 """``(t0, t1)`` in a record's own time (seconds), or None for the whole record."""
-
-
-def _at_rest(y: np.ndarray, n: int, step: float) -> bool:
-    """True when ``y[:n]`` stays within two quantisation steps (or 1e-3 of its range)."""
-    tolerance = max(2.0 * step, 1e-3 * float(np.ptp(y)), 1e-12)
-    return float(np.ptp(y[:n])) <= tolerance
 
 
 def logged_sensors(model: Model, record: Record) -> tuple[Sensor, ...]:
@@ -59,18 +51,15 @@ def model_record(model: Model, record: Record, window: Window = None) -> Record:
         return record if window is None else record.trim(*window)
     cut = record.trim(*window) if window is not None else record.trim()
     chosen = logged_sensors(model, record)
+    bands = rest_bands(chosen, record)
+    moving = why_not_at_rest(record.time, {c: record.channel(c) for c in bands}, bands,
+                             name=record.name, t0=None if window is None else window[0])
+    if moving is not None:
+        raise ValueError(moving)
     n_rest = max(2, int(round(REST_SPAN / cut.dt)))
     columns = {"time": cut.time, cut.input_name: cut.input}
     for sensor in chosen:
         reading = cut.channel(sensor.channel)
-        if not _at_rest(reading, n_rest, sensor.resolution):
-            t0 = float(record.time[0]) if window is None else float(window[0])
-            raise ValueError(
-                f"record {record.name!r} does not start at rest at t = {t0!r} s: "
-                f"{sensor.channel!r} changes by {float(np.ptp(reading[:n_rest])):.3g} in the "
-                f"first {REST_SPAN} s; the simulation starts from rest, so choose a window that "
-                "starts where the arm is still (window=(t0, t1))"
-            )
         columns[sensor.channel] = reading - float(np.mean(reading[:n_rest]))
     found = ", ".join(s.channel for s in chosen)
     ready = cut.with_columns(columns, note=f"sensors {found} re-zeroed at rest")

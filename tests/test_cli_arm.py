@@ -52,9 +52,18 @@ def test_identify_with_an_arm_then_validate_every_record(rotflex_csv, tmp_path, 
     window = ["validate", data[1], "--fit", str(fit), "--window", "10:20"]
     assert main(window) == 2
     err = capsys.readouterr().err
-    assert "does not start at rest at t = 10.0 s" in err and "(--window T0:T1)" in err
+    assert "does not start at rest at t = 10 s" in err and "(--window T0:T1)" in err
+    assert "rest tolerance" in err and err.count("\n") == 1
     assert main([*window[:-1], "20"]) == 2
-    assert "--window '20': expected T0:T1" in capsys.readouterr().err
+    assert "--window 20: expected T0:T1, T0:, :T1 or auto" in capsys.readouterr().err
+    # each record its own window: the square wave from its last rest, the random run's first 20 s
+    table = tmp_path / "windows.json"
+    assert main(["validate", *data, "--fit", str(fit), "--window", "square_wave=auto",
+                 "--window", "random_985=0:20", "--json", str(table)]) == 0
+    windows = json.loads(table.read_text())["windows"]
+    assert windows["random_985"] == [0.0, 20.0]
+    start, end = windows["square_wave"]
+    assert 0.0 < start < 0.1 and end == 5.0  # rests until the first step at about 0.1 s
 
 
 def test_arm_options_are_checked(rotflex_csv, tmp_path, capsys):

@@ -85,7 +85,9 @@ def test_windows_must_start_at_rest_and_say_how():
     with pytest.raises(ValueError) as info:
         model_record(ROTFLEX, record, window=(11.0, 12.5))
     message = str(info.value)
-    assert "does not start at rest at t = 11.0 s" in message and "window=(t0, t1)" in message
+    assert "does not start at rest at t = 11 s: 'joint_angle' changes by" in message
+    assert "(rest tolerance 0.00307 rad: 2 steps of 0.00153 rad)" in message
+    assert "window=(t0, t1)" in message
     ready = model_record(ROTFLEX, record, window=(10.1, 11.0))
     assert ready.time[0] == 0.0 and ready.duration == pytest.approx(0.9)
     assert ready.metadata["history"].startswith("trim [10.1")

@@ -4,8 +4,9 @@ Every command works on one rig (:class:`~jaxflex.model.Model`): ``--arm`` names 
 a packaged rig; without it, the reference testbed; a command given a fit works on the rig the
 fit carries whole (a later ``--arm`` must name the same rig). :func:`rig_of` finds it,
 :func:`ready_records` makes records as the rig logged them ready for its model (each cut to
-``--window``, its sensors re-zeroed at rest; :mod:`jaxflex.measured`) and :func:`rig_settings`
-is what a result records of where its rig came from.
+``--window`` (per record or for all, ``auto`` at the last rest before the motion;
+:mod:`jaxflex.cli._windows`), its sensors re-zeroed at rest; :mod:`jaxflex.measured`) and
+:func:`rig_settings` is what a result records of where its rig came from.
 """
 
 from __future__ import annotations
@@ -22,25 +23,7 @@ if TYPE_CHECKING:
     from jaxflex.model import Model
 
 Window = tuple[float, float] | None
-
-
-def add_window_argument(p: argparse.ArgumentParser) -> None:
-    p.add_argument("--window", metavar="T0:T1",
-                   help="use only T0 <= t <= T1 (s, in the records' own time)")
-
-
-def parse_window(text: str | None) -> Window:
-    """``"T0:T1"`` → ``(T0, T1)``; None stays None."""
-    if text is None:
-        return None
-    lo, sep, hi = text.partition(":")
-    try:
-        window = (float(lo), float(hi))
-    except ValueError:
-        window = None
-    if not sep or window is None or not window[0] < window[1]:
-        raise UsageError(f"--window {text!r}: expected T0:T1 with T0 < T1, in seconds")
-    return window
+"""``(t0, t1)`` in a record's own time, or None for the whole record."""
 
 
 def add_arm_arguments(p: argparse.ArgumentParser, *, window: bool = True) -> None:
@@ -50,7 +33,9 @@ def add_arm_arguments(p: argparse.ArgumentParser, *, window: bool = True) -> Non
                         "file (RIG.toml, see jaxflex.arm); default: the reference testbed, or "
                         "the rig a given fit carries")
     if window:
-        add_window_argument(p)
+        from jaxflex.cli._windows import add_windows_argument
+
+        add_windows_argument(p)
 
 
 def load_arm_file(path: str | os.PathLike, option: str = "--arm") -> Model:
@@ -96,19 +81,30 @@ def with_effects(model: Model, names: list[str], option: str = "--effect") -> Mo
     return model.with_effects(*added)
 
 
-def ready_records(model: Model, records, window: Window) -> list[Record]:
-    """Records as the rig logged them, made ready for its model
+def windows_of(args: argparse.Namespace, model: Model, records) -> list[Window]:
+    """Each record's window from ``--window`` (checked against the record; ``auto`` found from
+    the rig's sensors' rest bands), in the records' order."""
+    from jaxflex.cli._windows import parse_windows, resolve_window
+    from jaxflex.rest import rest_bands
+
+    given = parse_windows(getattr(args, "window", None), [r.name for r in records])
+    return [resolve_window(given.get(r.name), r, rest_bands(model.sensors, r)) for r in records]
+
+
+def ready_records(model: Model, records, windows: list[Window]) -> list[Record]:
+    """Records as the rig logged them, made ready for its model, each cut to its window
     (:func:`jaxflex.measured.prepare`), with command-line errors."""
     from jaxflex.measured import prepare
 
-    return _speaking_cli(prepare, model, list(records), [window] * len(records))
+    return _speaking_cli(prepare, model, list(records), windows)
 
 
-def rig_settings(model: Model, source: str | None, window: Window) -> dict:
+def rig_settings(model: Model, source: str | None, records, windows: list[Window]) -> dict:
     """What a result records of its rig: its name, the arm file it was read from (absolute;
-    for information: the result carries the rig itself) and the window."""
+    for information: the result carries the rig itself) and each record's window."""
     where = None if source is None or not Path(source).is_file() else str(Path(source).resolve())
-    return {"rig": model.name, "arm": where or source, "window": window}
+    return {"rig": model.name, "arm": where or source,
+            "windows": {r.name: w for r, w in zip(records, windows, strict=True)}}
 
 
 def arm_inputs(source: str | None) -> list[str]:

@@ -70,9 +70,9 @@ def check_before_launch(args: argparse.Namespace) -> None:
     from jaxflex.cli._arm import (
         arm_inputs,
         load_rig_records,
-        parse_window,
         ready_records,
         rig_of,
+        windows_of,
         with_effects,
     )
     from jaxflex.cli._checks import FIGURE_SUFFIXES, JSON_SUFFIXES, check_outputs
@@ -85,13 +85,12 @@ def check_before_launch(args: argparse.Namespace) -> None:
         parse_seeds(args.seeds)
     rig, source = rig_of(args)
     model = with_effects(rig, args.effect)
-    window = parse_window(args.window)
     records = load_rig_records(args.data, args)
     check_outputs(
         [("--out", args.out, JSON_SUFFIXES), ("--plot", args.plot, FIGURE_SUFFIXES)],
         overwrite=args.overwrite, inputs=[*sources(records), *arm_inputs(source)],
     )
-    ready_records(model, records, window)
+    ready_records(model, records, windows_of(args, model, records))
 
 
 def _stopped_by_launcher(signum, frame) -> None:

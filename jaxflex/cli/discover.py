@@ -16,10 +16,10 @@ from jaxflex.cli._arm import (
     add_arm_arguments,
     arm_inputs,
     load_rig_records,
-    parse_window,
     ready_records,
     rig_of,
     sensor_noise,
+    windows_of,
     with_effects,
 )
 from jaxflex.cli._checks import (
@@ -88,7 +88,6 @@ def run(args: argparse.Namespace) -> int:
         _, initial, fit = read_fit("--initial", args.initial, plain_parameters=True)
     rig, source = rig_of(args, fit)
     model = with_effects(rig, args.effect)
-    window = parse_window(args.window)
     records = load_rig_records(args.data, args)
     holdout = None
     if args.holdout:
@@ -107,8 +106,9 @@ def run(args: argparse.Namespace) -> int:
     check_outputs(targets, overwrite=args.overwrite,
                   inputs=[*sources(records), *sources(holdout or ()), args.initial,
                           *arm_inputs(source)])
-    records = ready_records(model, records, window)
-    holdout = None if holdout is None else ready_records(model, holdout, window)
+    records = ready_records(model, records, windows_of(args, model, records))
+    if holdout is not None:
+        holdout = ready_records(model, holdout, windows_of(args, model, holdout))
     if model.sensors:  # records as logged: the sensors' noise, scored over the whole record
         keywords["noise"] = sensor_noise(model, records, model.channels) | (
             keywords.get("noise") or {})

@@ -15,10 +15,10 @@ from jaxflex.cli._arm import (
     add_arm_arguments,
     arm_inputs,
     load_rig_records,
-    parse_window,
     ready_records,
     rig_of,
     rig_settings,
+    windows_of,
     with_effects,
 )
 from jaxflex.cli._checks import (
@@ -84,17 +84,18 @@ def run(args: argparse.Namespace) -> int:
         return status
     rig, source = rig_of(args)
     model = with_effects(rig, args.effect)
-    window = parse_window(args.window)
     records = load_rig_records(args.data, args)
     out, *plot = check_outputs(
         [("--out", args.out, JSON_SUFFIXES), ("--plot", args.plot, FIGURE_SUFFIXES)],
         overwrite=args.overwrite, inputs=[*sources(records), *arm_inputs(source)],
     )
-    ready = ready_records(model, records, window)
+    windows = windows_of(args, model, records)
+    ready = ready_records(model, records, windows)
     fit = search(args, ready, model, fit_keywords(args, identify))
     if not is_main():
         return 0
-    fit = dataclasses.replace(fit, settings=fit.settings | rig_settings(model, source, window))
+    rig = rig_settings(model, source, records, windows)
+    fit = dataclasses.replace(fit, settings=fit.settings | rig)
     print(fit.summary(), end="")
     with all_or_nothing():
         fit.to_json(out, overwrite=args.overwrite)

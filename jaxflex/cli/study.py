@@ -14,10 +14,10 @@ from jaxflex.cli._arm import (
     add_arm_arguments,
     arm_inputs,
     load_rig_records,
-    parse_window,
     ready_records,
     rig_of,
     rig_settings,
+    windows_of,
     with_effects,
 )
 from jaxflex.cli._checks import FIGURE_SUFFIXES, JSON_SUFFIXES, MAX_SEED, check_outputs
@@ -93,16 +93,16 @@ def run(args: argparse.Namespace) -> int:
     seeds = parse_seeds(args.seeds)
     rig, source = rig_of(args)
     model = with_effects(rig, args.effect)
-    window = parse_window(args.window)
     records = load_rig_records(args.data, args)
     out, *plot = check_outputs(
         [("--out", args.out, JSON_SUFFIXES), ("--plot", args.plot, FIGURE_SUFFIXES)],
         overwrite=args.overwrite, inputs=[*sources(records), *arm_inputs(source)],
     )
     keywords = fit_keywords(args, identify)
-    records = ready_records(model, records, window)
+    windows = windows_of(args, model, records)
+    ready = ready_records(model, records, windows)
     study = run_study(
-        records,
+        ready,
         methods,
         seeds,
         model=model,
@@ -117,8 +117,8 @@ def run(args: argparse.Namespace) -> int:
         check_finite_cost(r.cost, "bounds" in keywords)
     if not is_main():
         return 0
-    study = dataclasses.replace(study, settings=study.settings | rig_settings(model, source,
-                                                                               window))
+    rig = rig_settings(model, source, records, windows)
+    study = dataclasses.replace(study, settings=study.settings | rig)
     print(study.table(), end="")
     with all_or_nothing():
         study.to_json(out, overwrite=args.overwrite)

@@ -17,9 +17,9 @@ from jaxflex.cli import UsageError
 from jaxflex.cli._arm import (
     add_arm_arguments,
     load_rig_records,
-    parse_window,
     ready_records,
     rig_of,
+    windows_of,
 )
 from jaxflex.cli._checks import (
     JSON_SUFFIXES,
@@ -103,7 +103,6 @@ def run(args: argparse.Namespace) -> int:
 
     _, params, fit = read_fit("--fit", args.fit)
     model, _ = rig_of(args, fit)
-    window = parse_window(args.window)
     # one by one: a held-out record may be sampled at another rate than the fitted one
     records = [r for name in args.data for r in load_rig_records([name], args)]
     check_size(sum(r.n_samples for r in records), f"{len(records)} record(s)",
@@ -125,7 +124,8 @@ def run(args: argparse.Namespace) -> int:
         targets, overwrite=args.overwrite, inputs=[*sources(records), args.fit]
     ) or [None]
     json_target = json_target if args.json is not None else None
-    ready = ready_records(model, records, window)
+    windows = windows_of(args, model, records)
+    ready = ready_records(model, records, windows)
     t_end = args.t_end if args.t_end is not None or model.sensors else DEFAULT_T_END
     frf = FRFSettings(
         f_max=args.f_max, **({"min_input_db": None, "min_coherence": None} if args.raw_frf else {})
@@ -145,7 +145,8 @@ def run(args: argparse.Namespace) -> int:
         if json_target is not None:
             rows = [{"name": r.name, "role": r.role, "nrmse": dict(r.nrmse)}
                     for r in comparison.rows]
-            write_json(json_target, {"rig": model.name, "window": window, "t_end": t_end,
+            write_json(json_target, {"rig": model.name, "t_end": t_end, "windows": {
+                r.name: w for r, w in zip(records, windows, strict=True)},
                                      "records": rows}, overwrite=args.overwrite)
         if args.report:
             from jaxflex.plots.compare import save_report
