@@ -101,8 +101,8 @@ def run(args: argparse.Namespace) -> int:
         from jaxflex.plots.discover import report_paths
 
         directory = check_directory("--report", args.report)
-        targets += [("--report", p, None)
-                    for p in report_paths(records.names, directory, args.format)]
+        names = [*records.names, *(holdout.names if holdout else ())]
+        targets += [("--report", p, None) for p in report_paths(names, directory, args.format)]
     check_outputs(targets, overwrite=args.overwrite,
                   inputs=[*sources(records), *sources(holdout or ()), args.initial,
                           *arm_inputs(source)])

@@ -304,6 +304,7 @@ def discover(
             frf_nrmse=frf, holdout=held, diagnosis=diag, ranking=tuple(ranking),
             confirmations=tuple(confirmations), lr=added.get("lr"),
             p_value=added.get("p"), explained=added.get("explained"), predictions=preds,
+            holdout_predictions=tuple(held_preds or ()),
         ))
         if best is None:
             break

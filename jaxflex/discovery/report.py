@@ -83,6 +83,7 @@ class Step:
     explained: float | None = None
     label: str = ""
     predictions: tuple[Outputs, ...] = field(default=(), repr=False)
+    holdout_predictions: tuple[Outputs, ...] = field(default=(), repr=False)
 
     @property
     def effects(self) -> tuple[str, ...]:

@@ -183,17 +183,21 @@ def plot_overlay(
     *,
     labels: tuple[str, str] = ("before", "after"),
     outputs: Sequence[str] = OUTPUT_COLUMNS,
+    units: Mapping[str, str] | None = None,
+    role: str = "",
     figsize=(9.0, 6.5),
     dpi: float = 100.0,
 ) -> Figure:
     """Measured outputs of ``record`` against the model before and after, residuals below.
 
-    ``before`` and ``after`` are simulated outputs (:class:`~jaxflex.simulation.Outputs` or a
-    mapping channel → array).
+    ``before`` and ``after`` are simulated outputs (:class:`~jaxflex.simulation.Outputs`, whose
+    sensor readings count too, or a mapping channel → array); ``units`` name each channel's
+    unit (default: the record's), ``role`` the record's (fitted, held out) in the title.
     """
+    units = dict(units or {})
 
     def get(source, name):
-        value = source[name] if isinstance(source, Mapping) else getattr(source, name)
+        value = source[name] if isinstance(source, Mapping) else source.channel(name)
         value = np.asarray(value, dtype=np.float64)
         if value.shape != (record.n_samples,):
             raise ValueError(f"{name} has shape {value.shape}, expected ({record.n_samples},)")
@@ -205,7 +209,7 @@ def plot_overlay(
     for k, name in enumerate(outputs):
         measured = record.channel(name)
         ax, ax_res = axes[2 * k, 0], axes[2 * k + 1, 0]
-        unit = record.units.get(name) or "-"
+        unit = units.get(name) or record.units.get(name) or "-"
         ax.plot(t, measured, color=MEASURED, lw=1.0, label="measured")
         for source, label, colour, ls in ((before, labels[0], MODEL, ":"),
                                           (after, labels[1], _AFTER, "--")):
@@ -215,9 +219,10 @@ def plot_overlay(
         ax.set_ylabel(f"{_LABELS.get(name, name)} ({unit})")
         ax.legend(loc="best", fontsize="small", frameon=False)
         ax_res.axhline(0.0, color="0.4", lw=0.6)
-        ax_res.set_ylabel("residual")
+        ax_res.set_ylabel(f"residual ({unit})")
     axes[-1, 0].set_xlabel("time (s)")
-    fig.suptitle(f"{record.name}: {labels[0]} vs {labels[1]}", fontsize="medium")
+    held = f" ({role})" if role else ""
+    fig.suptitle(f"{record.name}{held}: {labels[0]} vs {labels[1]}", fontsize="medium")
     return fig
 
 

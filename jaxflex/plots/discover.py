@@ -18,6 +18,7 @@ from pathlib import Path
 from matplotlib.figure import Figure
 
 from jaxflex._io import check_writable, safe_stem, write_json, write_text
+from jaxflex.comparison import channel_units
 from jaxflex.discovery import DiscoveryReport
 from jaxflex.plots._style import save_figure
 from jaxflex.plots.diagnose import plot_diagnosis, plot_error_falling, plot_overlay
@@ -41,19 +42,28 @@ def plot_discovery(report: DiscoveryReport, **kwargs) -> Figure:
 
 
 def plot_before_after(report: DiscoveryReport, which: int | str = 0, **kwargs) -> Figure:
-    """Record ``which`` (position or name) against the base and the final model."""
-    names = report.records.names
+    """Record ``which`` (position or name; the fitted records, then the held-out ones) against
+    the base and the final model, each channel in its unit."""
+    records = [*report.records, *(report.holdout or ())]
+    names = [r.name for r in records]
     i = names.index(which) if isinstance(which, str) else which
     first, last = report.base, report.final
+    before = [*first.predictions, *first.holdout_predictions]
+    after = [*last.predictions, *last.holdout_predictions]
+    role = "fitted" if i < len(report.records) else "held out"
+    labels = (first.structure, last.structure)
+    if labels[0] == labels[1]:
+        labels = (f"{labels[0]}, nothing added", labels[1])
     return plot_overlay(
-        report.records[i], first.predictions[i], last.predictions[i],
-        labels=(first.structure, last.structure), outputs=report.channels, **kwargs,
+        records[i], before[i], after[i], labels=labels, outputs=report.channels,
+        units=channel_units(last.fit.model, report.channels), role=role, **kwargs,
     )
 
 
 def report_paths(names: Sequence[str], directory: str | os.PathLike,
                  fmt: str = "png") -> tuple[Path, ...]:
-    """The files :func:`save_discovery_report` writes for a run on records ``names``."""
+    """The files :func:`save_discovery_report` writes for a run on records ``names`` (the
+    fitted ones, then the held-out ones: each gets a before/after figure)."""
     directory = Path(directory)
     stems = [safe_stem(n) for n in names]
     if len(set(stems)) != len(stems):
@@ -83,7 +93,8 @@ def save_discovery_report(
     directory = Path(directory)
     if directory.exists() and not directory.is_dir():
         raise ValueError(f"{directory}: exists and is not a directory")
-    targets = report_paths(report.records.names, directory, fmt)
+    names = [*report.records.names, *(report.holdout.names if report.holdout else ())]
+    targets = report_paths(names, directory, fmt)
     for path in targets:
         check_writable(path, overwrite)
     text = report.table() + "\n" + "\n".join(report.explanations()) + "\n"
