@@ -14,7 +14,10 @@ the logged voltage alone, on the held-out random run 985 (1 kHz, 60 s):
 
 NRMSE in percent per channel (``100·rms(y − ŷ)/rms(y)``) over the whole records. The data come
 from ``JAXFLEX_DATA_DIR`` or the pinned upstream URLs (jaxflex.datasets); nothing is stored.
-Results go to ``benchmarks/results/real_rig.json``; ``--quick`` shrinks the physical fit.
+Results go to ``benchmarks/results/real_rig.json``, and the figures of the fit with the torque
+offset against both runs (``validate --report``'s time figures: every channel in its unit, the
+residual below) to ``real_rig_square_wave.png`` and ``real_rig_random_985.png`` beside it;
+``--quick`` shrinks the physical fit.
 """
 
 from __future__ import annotations
@@ -28,10 +31,13 @@ import scipy.linalg
 import scipy.signal
 
 from jaxflex import datasets, get_effect, identify
-from jaxflex._io import provenance, write_json
+from jaxflex._io import check_writable, provenance, write_json
 from jaxflex.arm import load_arm
+from jaxflex.comparison import compare
 from jaxflex.measured import model_record, validate
 from jaxflex.metrics import nrmse
+from jaxflex.plots._style import save_figure
+from jaxflex.plots.compare import plot_time
 
 ROOT = Path(__file__).resolve().parent
 ARM = "quanser_rotflex"  # the packaged arm file (jaxflex/rigs)
@@ -63,7 +69,7 @@ def physical(arm, fit_run, held_out, budget: tuple[int, int], seed: int, effects
     wall = time.perf_counter() - start
     params = {k: float(v) for k, v in fit.params.items()}
     scores = validate(model, params, [fit_run, held_out])
-    return {
+    return model, params, {
         "effects": [e.name for e in effects],
         "settings": {"generations": generations, "population": population, "seed": seed},
         "wall_time_s": wall,
@@ -133,6 +139,9 @@ def main() -> None:
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--out", type=Path, default=RESULTS)
     args = parser.parse_args()
+    figures = [args.out.with_name(f"real_rig_{name}.png") for name in ("square_wave", "random_985")]
+    for path in (args.out, *figures):
+        check_writable(path, overwrite=True)
     arm = load_arm(ARM)
     records = datasets.load("quanser_rotflex")
     fit_run, held_out = records["square_wave"], records["random_985"]
@@ -144,10 +153,15 @@ def main() -> None:
         "black_box": black_box(fit_run, held_out),
     }
     write_json(args.out, results | {"provenance": provenance()}, overwrite=True)
-    results["physical"] = physical(arm, fit_run, held_out, budget, args.seed)
+    results["physical"] = physical(arm, fit_run, held_out, budget, args.seed)[2]
     offset = (get_effect("torque_offset"),)
-    results["physical_offset"] = physical(arm, fit_run, held_out, budget, args.seed, offset)
+    model, params, results["physical_offset"] = physical(arm, fit_run, held_out, budget,
+                                                         args.seed, offset)
     write_json(args.out, results | {"provenance": provenance()}, overwrite=True)
+    ready = [model_record(model, r) for r in (fit_run, held_out)]
+    comparison = compare(model, params, ready, fit_names=[fit_run.name], t_end=None)
+    for i, path in enumerate(figures):
+        save_figure(plot_time(comparison, i), path, overwrite=True)
     for label in ("physical", "physical_offset", "black_box"):
         entry = results[label]["best"] if label == "black_box" else results[label]
         print(

@@ -22,6 +22,7 @@ definition over every bin of the band is kept as ``frf_nrmse_raw``.
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import textwrap
 import warnings
@@ -289,7 +290,8 @@ def compare(
     bins its NRMSE compares (default: leave out bins with input power more than 30 dB below
     the band maximum, see :class:`FRFSettings`; ``frf_nrmse_raw`` keeps every bin). Give the
     sensor noise (``encoder_counts`` per revolution, accelerometer ``accel_sigma`` in m/s²) when
-    it is known, e.g. for synthetic records, to report the noise floor next to each metric.
+    it is known, e.g. for synthetic records, to report the noise floor next to each metric; a
+    rig's sensors state their own (their resolution and noise).
     """
     dataset = _as_dataset(records)
     if not len(dataset):
@@ -316,13 +318,20 @@ def compare(
         for record in dataset:
             record.channel(c)  # a KeyError naming the record, the channel and its columns
     link = link_channel(model, channels)
+    sigma = {s.channel: s.noise_std for s in model.sensors
+             if s.noise_std > 0 and s.channel in channels}
 
     rows, simulated = [], []
     for record in dataset:
         out = calibrated(model, values, simulate(model, values, record.input, dt=record.dt))
         role = "fit" if record.name in fit_names else "held-out"
-        rows.append(compare_record(record, out, role, t_end, settings, encoder_counts,
-                                   accel_sigma, channels, link))
+        row = compare_record(record, out, role, t_end, settings, encoder_counts, accel_sigma,
+                             channels, link)
+        if sigma:
+            window = _time_window(record, t_end)
+            floor = {c: _percent_of_rms(s, record.channel(c)[window]) for c, s in sigma.items()}
+            row = dataclasses.replace(row, noise_floor=row.noise_floor | floor)
+        rows.append(row)
         simulated.append(out)
 
     nyquist = 0.5 / max(r.dt for r in dataset)
@@ -331,7 +340,7 @@ def compare(
         k: v
         for k, v in (("encoder_counts", encoder_counts), ("accel_sigma", accel_sigma))
         if v is not None
-    }
+    } | {f"{c} sigma": s for c, s in sigma.items()}
     return Comparison(
         rows=tuple(rows),
         records=dataset,

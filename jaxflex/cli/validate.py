@@ -103,6 +103,11 @@ def run(args: argparse.Namespace) -> int:
 
     _, params, fit = read_fit("--fit", args.fit)
     model, _ = rig_of(args, fit)
+    stated = [o for o, v in (("--encoder-counts", args.encoder_counts),
+                             ("--accel-sigma", args.accel_sigma)) if v is not None]
+    if stated and model.sensors:
+        raise UsageError(f"{stated[0]}: rig {model.name!r} states its sensors' noise (their "
+                         "resolution and noise in its arm file), which sets the noise floor")
     # one by one: a held-out record may be sampled at another rate than the fitted one
     records = [r for name in args.data for r in load_rig_records([name], args)]
     check_size(sum(r.n_samples for r in records), f"{len(records)} record(s)",

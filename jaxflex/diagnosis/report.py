@@ -283,7 +283,7 @@ def diagnose(
 ) -> Diagnosis:
     """Run every diagnostic on the residuals of ``predictions`` (one per record) in
     ``channels``, the outputs the records measure (default ``joint_angle`` and
-    ``tip_acceleration``; an arm's sensors give others, e.g. ``root_strain``).
+    ``tip_acceleration``; a rig's sensors give their own channels, e.g. ``deflection_angle``).
 
     A prediction is an :class:`~jaxflex.simulation.Outputs`, a :class:`Record` or a mapping
     with every channel (its ``joint_angle`` and ``joint_velocity`` localise the misfit where

@@ -56,11 +56,12 @@ The loop (:func:`discover`)
     time and frequency, and how large.
 
 Channels
-    The records may measure any of the simulator's outputs (``channels=``, as in ``identify``;
-    an arm's sensors give them, :func:`jaxflex.measured.fit_channels`): an encoder and a root
-    strain gauge fit ``joint_angle`` and ``root_strain``. Residuals, noise levels, the
-    diagnosis (its FRF from the torque to the first link channel) and the report are per
-    channel; what the records do not measure is not fitted.
+    The records may measure any of the simulator's outputs or the rig's sensor channels
+    (``channels=``, as in ``identify``; by default the rig's sensors that every record holds:
+    an encoder and a root strain gauge logged as ``joint_angle`` and ``deflection_angle``).
+    Residuals, noise levels, the diagnosis (its FRF from the input to the first link channel)
+    and the report are per channel, each in its unit; what the records do not measure is not
+    fitted.
 """
 
 from jaxflex.discovery.candidates import Candidate, candidate_set, default_candidates
