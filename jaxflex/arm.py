@@ -46,10 +46,12 @@ without ``[[sensors]]`` is fitted on the simulator's outputs, named as record co
 
 A sensor's ``gain`` given as a table of ``reference``, ``lower`` and ``upper`` is identified:
 the model holds a ``sensor_gain`` effect on the sensor's channel
-(:mod:`jaxflex.effects.sensor_gain`). A command drive's ``torque_per_unit`` given as such a table
+(:mod:`jaxflex.effects.sensor_gain`). A sensor with ``rezero = false`` (its records keep their
+zero) may give its ``offset`` as such a table: the model then holds a ``sensor_offset`` effect,
+symmetric about the stated offset. A command drive's ``torque_per_unit`` given as such a table
 is identified the same way: the model holds a ``drive_gain`` effect
-(:mod:`jaxflex.effects.drive_gain`). An ``offset`` is always fixed: records are re-zeroed at
-rest (:mod:`jaxflex.measured`), which removes any constant.
+(:mod:`jaxflex.effects.drive_gain`). By default records are re-zeroed at rest
+(:mod:`jaxflex.measured`), which removes any offset.
 
 Any error (unknown key, missing value, wrong type, bounds that exclude the reference value) is
 an :class:`ArmError` whose one-line message names the file and the key.
@@ -66,7 +68,14 @@ from collections.abc import Mapping
 from typing import Any
 
 from jaxflex.drives import DRIVES, CommandDrive, Drive
-from jaxflex.effects import ChannelEffect, DriveGain, Effect, SensorGain, get_effect
+from jaxflex.effects import (
+    ChannelEffect,
+    DriveGain,
+    Effect,
+    SensorGain,
+    SensorOffset,
+    get_effect,
+)
 from jaxflex.model import Model
 from jaxflex.parameters import BASE_PARAMETERS, ParameterSpec
 from jaxflex.sensors import SENSORS, Sensor
@@ -135,10 +144,8 @@ def arm_from_dict(data: Mapping[str, Any], where: str = "arm") -> Model:
     )
     specs, fixed = _parameters(top.table("parameters"))
     drive, drive_gain = _drive(top.table("drive"))
-    sensors, gains = _sensors(top, length)
-    effects = _effects(top) + tuple(
-        _gain_effect(top.where, channel, bounds) for channel, bounds in gains
-    ) + drive_gain
+    sensors, calibrations = _sensors(top, length)
+    effects = _effects(top) + calibrations + drive_gain
     name = top.string("name")
     description = top.string("description", "")
     top.done()
@@ -180,6 +187,16 @@ def _gain_effect(where: str, channel: str, bounds: tuple[float, float, float]) -
     reference, lower, upper = bounds
     try:
         return SensorGain(channel=channel, reference=reference, lower=lower, upper=upper)
+    except ValueError as err:
+        raise ArmError(f"{where}: sensor {channel}: {err}") from None
+
+
+def _offset_effect(where: str, channel: str, bounds: tuple[float, float, float]) -> SensorOffset:
+    """The ``sensor_offset`` effect that identifies a sensor's offset beyond its stated one:
+    symmetric about it, as wide as the farther bound."""
+    reference, lower, upper = bounds
+    try:
+        return SensorOffset(channel=channel, bound=max(reference - lower, upper - reference))
     except ValueError as err:
         raise ArmError(f"{where}: sensor {channel}: {err}") from None
 
@@ -356,15 +373,14 @@ def _command_drive(table: _Table) -> tuple[CommandDrive, tuple[DriveGain, ...]]:
         raise ArmError(f"{table.where}: {table.prefix[:-1]}: {err}") from None
 
 
-def _sensors(
-    top: _Table, length: float
-) -> tuple[tuple[Sensor, ...], tuple[tuple[str, tuple[float, float, float]], ...]]:
+def _sensors(top: _Table, length: float) -> tuple[tuple[Sensor, ...], tuple[Effect, ...]]:
     """The ``[[sensors]]`` tables: ``type`` picks the class, the other keys are its fields; and
-    ``(channel, (reference, lower, upper))`` of each gain given as a table (identified)."""
+    the effects that identify each gain or offset given as a table of bounds."""
     entries = top._get("sensors", [])
     if not isinstance(entries, list):
         raise top._wrong("sensors", "an array of tables ([[sensors]])", entries)
-    sensors, gains = [], []
+    sensors: list[Sensor] = []
+    calibrations: list[Effect] = []
     for i, entry in enumerate(entries):
         table = _Table(entry, top.where, f"sensors[{i}].")
         kind = table.string("type")
@@ -380,11 +396,18 @@ def _sensors(
             bounds = _bounded(gain, signed=True)
             values["gain"] = bounds[0]
             gain.done()
+        offset_bounds = None
         if isinstance(table.data.get("offset"), Mapping):
-            raise ArmError(
-                f"{table.where}: {table.key('offset')}: an offset cannot be identified (records "
-                "are re-zeroed at rest, which removes it); give a number"
-            )
+            if table.data.get("rezero", True) is not False:
+                raise ArmError(
+                    f"{table.where}: {table.key('offset')}: an offset cannot be identified from "
+                    "records re-zeroed at rest, which removes it; give a number, or set "
+                    "rezero = false for records that keep their zero"
+                )
+            entry = table.table("offset")
+            offset_bounds = _bounded(entry, signed=True)
+            values["offset"] = offset_bounds[0]
+            entry.done()
         for f in dataclasses.fields(SENSORS[kind]):
             if f.name not in table.data or f.name in values:
                 continue
@@ -392,7 +415,9 @@ def _sensors(
                 values[f.name] = table.string(f.name)
             elif f.default is None or f.name in ("noise", "resolution", "x"):
                 values[f.name] = table.number(f.name, minimum=0.0)
-            elif isinstance(f.default, bool) or not isinstance(f.default, (int, float)):
+            elif isinstance(f.default, bool):
+                values[f.name] = table.boolean(f.name)
+            elif not isinstance(f.default, (int, float)):
                 continue
             elif isinstance(f.default, int):
                 values[f.name] = table.integer(f.name)
@@ -411,8 +436,10 @@ def _sensors(
         except ValueError as err:
             raise ArmError(f"{table.where}: sensors[{i}]: {err}") from None
         if bounds is not None:
-            gains.append((sensors[-1].channel, bounds))
-    return tuple(sensors), tuple(gains)
+            calibrations.append(_gain_effect(top.where, sensors[-1].channel, bounds))
+        if offset_bounds is not None:
+            calibrations.append(_offset_effect(top.where, sensors[-1].channel, offset_bounds))
+    return tuple(sensors), tuple(calibrations)
 
 
 _MISSING: Any = object()

@@ -5,7 +5,8 @@ of the rig's sensor channels in their own units, and time that may start anywher
 :func:`model_record` cuts the requested window, checks that the arm is at rest at its start (the
 simulation starts from rest) and re-zeroes each sensor channel at rest, which removes the
 sensors' offsets: the model's readings are taken relative to rest
-(:meth:`~jaxflex.sensors.Sensor.reading`). The input keeps its own name and unit; the rig's drive
+(:meth:`~jaxflex.sensors.Sensor.reading`); a sensor with ``rezero=False`` keeps the record's zero,
+less its stated offset. The input keeps its own name and unit; the rig's drive
 turns it into hub torque. A rig without sensors reads records of the simulator's outputs (the
 reference format) as they are, cut to the window.
 
@@ -60,7 +61,8 @@ def model_record(model: Model, record: Record, window: Window = None) -> Record:
     columns = {"time": cut.time, cut.input_name: cut.input}
     for sensor in chosen:
         reading = cut.channel(sensor.channel)
-        columns[sensor.channel] = reading - float(np.mean(reading[:n_rest]))
+        zero = float(np.mean(reading[:n_rest])) if sensor.rezero else sensor.offset
+        columns[sensor.channel] = reading - zero
     found = ", ".join(s.channel for s in chosen)
     ready = cut.with_columns(columns, note=f"sensors {found} re-zeroed at rest")
     return ready.replace(metadata=ready.metadata | {"rig": model.name, "sensors": found})

@@ -43,7 +43,10 @@ class Sensor(eqx.Module):
     """Base class: one record channel, its calibration (gain, offset) and noise model.
 
     ``resolution`` is the quantisation step of the logged values (0: none) and ``noise`` the
-    standard deviation of white measurement noise, both in the channel's units.
+    standard deviation of white measurement noise, both in the channel's units. ``rezero``:
+    a record is re-zeroed at rest, which removes any offset (the default); ``False``: the
+    record keeps its zero and the reading less the stated ``offset`` is fitted (an unknown
+    offset is then a ``sensor_offset`` effect to identify).
     """
 
     kind: ClassVar[str] = "sensor"
@@ -53,8 +56,12 @@ class Sensor(eqx.Module):
     offset: float = 0.0
     noise: float = 0.0
     resolution: float = 0.0
+    rezero: bool = True
 
     def __check_init__(self) -> None:
+        if not isinstance(self.rezero, bool):
+            raise ValueError(f"{self.kind} {self.channel}: rezero={self.rezero!r} must be "
+                             "true or false")
         if not isinstance(self.channel, str) or not self.channel.isidentifier():
             raise ValueError(f"{self.kind}: channel {self.channel!r} must be an identifier")
         for name in ("gain", "offset", "noise", "resolution"):

@@ -144,9 +144,33 @@ def test_gain_table_errors_are_one_line_naming_the_key(gain, message):
     assert "\n" not in str(info.value)
 
 
-def test_an_offset_table_is_refused_with_the_reason():
+def test_an_offset_table_is_refused_with_the_reason_on_records_re_zeroed_at_rest():
     data = _rig(1.0)
     data["sensors"][1]["offset"] = {"reference": 0.0, "lower": -1.0, "upper": 1.0}
     with pytest.raises(ArmError, match=r"^rig.toml: sensors\[1\].offset: an offset cannot be "
-                                       r"identified \(records are re-zeroed at rest"):
+                                       r"identified from records re-zeroed at rest, which "
+                                       r"removes it; give a number, or set rezero = false"):
         arm_from_dict(data, "rig.toml")
+
+
+def test_a_record_that_keeps_its_zero_identifies_the_sensors_offset():
+    """An accelerometer biased by 0.3 m/s², logged without re-zeroing; the arm file says
+    'offset 0.1 within ±1, rezero = false': the residuals vanish at offset_acc = 0.2 (the bias
+    beyond the stated offset), not at 0."""
+    true = arm_from_dict(_rig(1.0) | {"sensors": [
+        {"type": "encoder"}, {"type": "accelerometer", "x": 0.5, "channel": "acc",
+                              "offset": 0.3}]})
+    torque = np.concatenate([np.zeros(100), reference_input("pulse", duration=0.5)[1]])
+    time = 1e-3 * np.arange(torque.size)
+    log = logged_record(true, reference_parameters(), time, torque)
+    data = _rig(1.0)
+    data["sensors"][1] |= {"rezero": False, "offset": {"reference": 0.1, "lower": -0.9,
+                                                       "upper": 1.1}}
+    arm = arm_from_dict(data)
+    assert arm.effect_names == ("sensor_offset:acc",) and arm.sensor("acc").offset == 0.1
+    ready = model_record(arm, log)
+    np.testing.assert_allclose(ready.channel("acc")[:100], 0.2, rtol=0, atol=1e-12)
+    objective = build_objective([ready], arm)
+    right = objective.residuals(reference_parameters() | {"offset_acc": 0.2})
+    wrong = objective.residuals(reference_parameters() | {"offset_acc": 0.0})
+    assert np.abs(right).max() < 1e-7 * np.abs(wrong).max()
