@@ -93,10 +93,19 @@ def windows_of(args: argparse.Namespace, model: Model, records) -> list[Window]:
 
 def ready_records(model: Model, records, windows: list[Window]) -> list[Record]:
     """Records as the rig logged them, made ready for its model, each cut to its window
-    (:func:`jaxflex.measured.prepare`), with command-line errors."""
-    from jaxflex.measured import prepare
+    (:func:`jaxflex.measured.prepare`), with command-line errors; for a rig with sensors, one
+    line per record says which of them it holds."""
+    from jaxflex.measured import logged_sensors, prepare
 
-    return _speaking_cli(prepare, model, list(records), windows)
+    ready = _speaking_cli(prepare, model, list(records), windows)
+    for record, window in zip(records, windows, strict=True) if model.sensors else ():
+        found = logged_sensors(model, record)
+        missing = [c for c in model.channels if c not in record.columns]
+        cut = "" if window is None else f", {window[0]:g} to {window[1]:g} s"
+        print(f"{record.name}{cut}: {record.input_name} in; "
+              + ", ".join(f"{s.channel} ({s.kind}, {s.unit or '-'})" for s in found)
+              + (f"; not logged: {', '.join(missing)}" if missing else ""))
+    return ready
 
 
 def rig_settings(model: Model, source: str | None, records, windows: list[Window]) -> dict:
