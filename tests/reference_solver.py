@@ -17,6 +17,14 @@ from jaxflex.model import Model
 
 def radau_reference(model: Model, params, torque, dt, rtol=1e-9, atol=1e-11):
     """Joint angle, tip acceleration and joint velocity at the samples (right-hand limits)."""
+    q, velocity, acc = radau_states(model, params, torque, dt, rtol=rtol, atol=atol)
+    tip = np.asarray(model.structure(params).tip)
+    return np.array([q[:, 0], model.testbed.length * acc[:, 0] + acc @ tip, velocity[:, 0]])
+
+
+def radau_states(model: Model, params, torque, dt, rtol=1e-9, atol=1e-11):
+    """The physical state at the samples (right-hand limits): ``q``, ``q'`` and ``q''``, each
+    ``(samples, 1 + 2n)`` over ``q = [θ, w_1, w'_1, …, w_n, w'_n]`` (node 0 clamped)."""
     structure = model.structure(params)
     mass = np.asarray(structure.mass)
     stiffness = np.asarray(structure.stiffness)
@@ -30,8 +38,6 @@ def radau_reference(model: Model, params, torque, dt, rtol=1e-9, atol=1e-11):
     mk, md, me = inv_mass @ stiffness, inv_mass @ damping, inv_mass[:, 0]
     b_v, tau_c = float(params["b_v"]), float(params["tau_c"])
     omega_s = model.testbed.omega_s
-    tip = np.asarray(structure.tip)
-    length = model.testbed.length
 
     def friction(v):
         return b_v * v + tau_c * np.tanh(v / omega_s)
@@ -72,7 +78,7 @@ def radau_reference(model: Model, params, torque, dt, rtol=1e-9, atol=1e-11):
         states[start : end + 1] = sol.y.T
         x = sol.y[:, -1]
     acc = np.array([acceleration(s, tau) for s, tau in zip(states, torque, strict=True)])
-    return np.array([states[:, 0], length * acc[:, 0] + acc @ tip, states[:, n]])
+    return states[:, :n], states[:, n:], acc
 
 
 def designed_torque() -> np.ndarray:
