@@ -25,8 +25,10 @@ def test_identify_with_an_arm_then_validate_every_record(rotflex_csv, tmp_path, 
     arm.write_text((ARMS / "quanser_rotflex.toml").read_text())
     args = ["identify", str(rotflex_csv / "square_wave.csv"), "--arm", str(arm),
             "--generations", "2", "--population", "8", "--no-refine", "--quiet",
-            "--out", str(fit)]
+            "--out", str(fit), "--plot", str(tmp_path / "fit.png")]
     assert main(args) == 0
+    assert (tmp_path / "fit.png").is_file()  # convergence and intervals
+    assert (tmp_path / "fit_square_wave.png").is_file()  # the record against the fit
     saved = json.loads(fit.read_text())
     assert saved["settings"]["arm"] == str(arm.resolve())
     assert saved["model_description"]["drive"]["type"] == "voltage"  # the rig, whole

@@ -68,7 +68,9 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                    help="refine from the K best candidates (default: %(default)s)")
     p.add_argument("--out", required=True, metavar="FIT.json", help="where to write the fit")
     p.add_argument("--plot", metavar="FIG.png",
-                   help="also write a figure: convergence and parameter intervals")
+                   help="also write figures: convergence and parameter intervals in FIG.png, "
+                        "and each record against the fit, every channel in its unit, with the "
+                        "residual, in FIG_<record>.png")
     add_arm_arguments(p)
     p.set_defaults(func=run)
 
@@ -86,7 +88,8 @@ def run(args: argparse.Namespace) -> int:
     model = with_effects(rig, args.effect)
     records = load_rig_records(args.data, args)
     out, *plot = check_outputs(
-        [("--out", args.out, JSON_SUFFIXES), ("--plot", args.plot, FIGURE_SUFFIXES)],
+        [("--out", args.out, JSON_SUFFIXES), ("--plot", args.plot, FIGURE_SUFFIXES)]
+        + [("--plot", p, FIGURE_SUFFIXES) for p in record_figures(args.plot, records)],
         overwrite=args.overwrite, inputs=[*sources(records), *arm_inputs(source)],
     )
     windows = windows_of(args, model, records)
@@ -100,13 +103,31 @@ def run(args: argparse.Namespace) -> int:
     with all_or_nothing():
         fit.to_json(out, overwrite=args.overwrite)
         if plot:
+            from jaxflex.comparison import compare
             from jaxflex.plots._style import save_figure
+            from jaxflex.plots.compare import plot_time
             from jaxflex.plots.identify import plot_fit
 
             save_figure(plot_fit(fit), plot[0], overwrite=args.overwrite)
+            comparison = compare(fit.model(), fit.params, ready, fit_names=fit.record_names,
+                                 t_end=None, channels=fit.settings["channels"])
+            for i, path in enumerate(plot[1:]):
+                save_figure(plot_time(comparison, i), path, overwrite=args.overwrite)
     for path in (out, *plot):
         print(f"wrote {path}")
     return 0
+
+
+def record_figures(plot: str | None, records) -> list[str]:
+    """``FIG_<record>.<suffix>`` beside ``--plot FIG.<suffix>``, one per record."""
+    if plot is None:
+        return []
+    from pathlib import Path
+
+    from jaxflex._io import safe_stem
+
+    path = Path(plot)
+    return [str(path.with_name(f"{path.stem}_{safe_stem(r.name)}{path.suffix}")) for r in records]
 
 
 def search(args: argparse.Namespace, records, model, keywords: dict):
