@@ -347,22 +347,26 @@ def load_record(
     name: str | None = None,
     resample: bool = False,
     unit_check: bool = True,
+    channels: Iterable[str] = (),
 ) -> Record:
     """Read and validate a record from a ``.csv`` or ``.npz`` file.
 
-    ``name`` defaults to the file stem. A non-uniform time column is an error unless
-    ``resample=True``, which interpolates all columns linearly onto a grid with the median step
-    (with a :class:`RecordWarning` that names the longest gap). Columns whose units look wrong
+    ``name`` defaults to the file stem. ``channels`` names a rig's sensor channels: a column
+    named so is that sensor's, never taken for a misspelt reference-format column (a rig's
+    ``angle`` is not a typing error for ``joint_angle``). A non-uniform time column is an error
+    unless ``resample=True``, which interpolates all columns linearly onto a grid with the median
+    step (with a :class:`RecordWarning` that names the longest gap). Columns whose units look wrong
     (time in ms, angle in degrees, torque far off scale; :func:`check_units`) are an error
     unless ``unit_check=False``.
     """
     path = Path(path)
     suffix = _suffix(path)
     where = str(path)
+    own = tuple(channels)
     if suffix == ".csv":
-        columns, row, metadata = _read_csv(path)
+        columns, row, metadata = _read_csv(path, own)
     else:
-        columns, row, metadata = _read_npz(path)
+        columns, row, metadata = _read_npz(path, own)
     columns = _check_arrays(columns, where, row, min_samples=MIN_FILE_SAMPLES)
     n = columns["time"].shape[0]
     if resample and _irregular_step(columns["time"]) is not None:
@@ -399,9 +403,11 @@ def load_dataset(
     *,
     resample: bool = False,
     unit_check: bool = True,
+    channels: Iterable[str] = (),
 ) -> Dataset:
     """Load records into a :class:`Dataset`; a directory means all its .csv/.npz files, sorted
-    (sub-directories are skipped, whatever their names)."""
+    (sub-directories are skipped, whatever their names); ``channels`` as in
+    :func:`load_record`."""
     if isinstance(paths, (str, os.PathLike)):
         root = Path(paths)
         if root.is_dir():
@@ -414,7 +420,9 @@ def load_dataset(
             files = [root]
     else:
         files = [Path(p) for p in paths]
-    return Dataset(load_record(p, resample=resample, unit_check=unit_check) for p in files)
+    own = tuple(channels)
+    return Dataset(load_record(p, resample=resample, unit_check=unit_check, channels=own)
+                   for p in files)
 
 
 def save_record(record: Record, path: str | os.PathLike, *, overwrite: bool = False) -> Path:
@@ -451,7 +459,9 @@ def save_npz(record: Record, path: str | os.PathLike, *, overwrite: bool = False
 # --- reading ------------------------------------------------------------------------------------
 
 
-def _read_csv(path: Path) -> tuple[dict[str, np.ndarray], RowLabel, dict[str, str]]:
+def _read_csv(
+    path: Path, own: Sequence[str] = ()
+) -> tuple[dict[str, np.ndarray], RowLabel, dict[str, str]]:
     """Parse a CSV record into columns, a row labeller (file line numbers) and metadata."""
     where = str(path)
     try:
@@ -475,7 +485,7 @@ def _read_csv(path: Path) -> tuple[dict[str, np.ndarray], RowLabel, dict[str, st
             continue
         elif header is None:
             header, header_line = [_unquote(c) for c in stripped.split(",")], lineno
-            _check_header(header, where, lineno)
+            _check_header(header, where, lineno, own)
         else:
             lines.append(lineno)
             rows.append([_unquote(c) for c in stripped.split(",")])
@@ -531,7 +541,7 @@ def _parse_comment(text: str, metadata: dict[str, str], where: str, lineno: int)
     metadata[key] = value
 
 
-def _check_header(header: list[str], where: str, lineno: int) -> None:
+def _check_header(header: list[str], where: str, lineno: int, own: Sequence[str] = ()) -> None:
     """Refuse empty, duplicated or missing column names, suggesting close matches."""
     if len(header) == 1:
         for sep, label in ((";", "semicolons"), ("\t", "tabs")):
@@ -553,7 +563,7 @@ def _check_header(header: list[str], where: str, lineno: int) -> None:
                 f"{where}: line {lineno}: column {c!r} appears twice (columns "
                 f"{header.index(c) + 1} and {j + 1})"
             )
-    details = _missing_columns(header, "column")
+    details = _missing_columns(header, "column", own)
     if details:
         raise RecordError(f"{where}: line {lineno} (header): {details}; header is {header}")
     _check_inputs_and_outputs(header, f"{where}: line {lineno} (header)")
@@ -572,7 +582,9 @@ def _parse_cell(cell: str, where: str, lineno: int, column: str) -> float:
         ) from None
 
 
-def _read_npz(path: Path) -> tuple[dict[str, np.ndarray], RowLabel, dict[str, str]]:
+def _read_npz(
+    path: Path, own: Sequence[str] = ()
+) -> tuple[dict[str, np.ndarray], RowLabel, dict[str, str]]:
     """Read an NPZ record: one array per column, optional JSON metadata."""
     where = str(path)
     try:
@@ -600,7 +612,7 @@ def _read_npz(path: Path) -> tuple[dict[str, np.ndarray], RowLabel, dict[str, st
             ) from None
         if not isinstance(metadata, dict):
             raise RecordError(f"{where}: {_NPZ_METADATA_KEY!r} is not a JSON object")
-    details = _missing_columns(list(arrays), "array")
+    details = _missing_columns(list(arrays), "array", own)
     if details:
         raise RecordError(f"{where}: {details}; arrays are {list(arrays)}")
     _check_inputs_and_outputs(list(arrays), where)
@@ -801,13 +813,14 @@ def _effective_length(time: np.ndarray, angle: np.ndarray, tip: np.ndarray) -> f
     return float(coef[0]) if needed > 2 else None
 
 
-def _missing_columns(names: Sequence[str], kind: str) -> str:
+def _missing_columns(names: Sequence[str], kind: str, own: Sequence[str] = ()) -> str:
     """'column X not found; did you mean Y?' for each absent column that a present one resembles.
 
     ``time`` is always required; the other reference-format columns are optional, but a name close
-    to one of them is far more likely a misspelling than another sensor.
+    to one of them is far more likely a misspelling than another sensor, unless it is one of the
+    rig's own sensor channels ``own``.
     """
-    unused = [c for c in names if c not in REQUIRED_COLUMNS + INPUT_COLUMNS]
+    unused = [c for c in names if c not in (*REQUIRED_COLUMNS, *INPUT_COLUMNS, *own)]
     missing = [
         c
         for c in REQUIRED_COLUMNS

@@ -217,10 +217,19 @@ class _HubSpring(Effect):
                            structure.stiffness.at[0, 0].add(params["k_s"]))
 
 
+@pytest.fixture
+def own_effect(monkeypatch):
+    """The user's effect registered by name, for this test only (the registry is restored)."""
+    import jaxflex.effects
+
+    monkeypatch.setattr(jaxflex.effects, "EFFECTS", dict(jaxflex.effects.EFFECTS))
+    assert register_effect(_HubSpring) is _HubSpring
+    assert jaxflex.effects.get_effect("hub_spring") == _HubSpring()
+
+
 def _odd_rig() -> Model:
     """A rig unlike the reference strip: other geometry, a voltage drive, sensors part-way
     along the link, an identified gain, a fixed parameter, a user's own effect, 8 modes."""
-    register_effect(_HubSpring)
     text = (ARMS / "quanser_rotflex.toml").read_text()
     rig = arm_from_dict(tomllib.loads(text))
     sensors = (*rig.sensors, Accelerometer(channel="acc_mid", x=0.3, gain=0.102, noise=0.01),
@@ -234,7 +243,7 @@ def _odd_rig() -> Model:
 
 @pytest.mark.parametrize("name", ["reference", "quanser_rotflex", "daisy_robot_arm", "odd"])
 def test_every_rig_round_trips_through_toml_and_a_fit_file_with_identical_simulations(
-    tmp_path, name
+    tmp_path, name, own_effect
 ):
     from jaxflex.identification import build_model, describe_model
 

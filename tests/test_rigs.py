@@ -59,10 +59,13 @@ def test_a_path_is_a_path_and_an_existing_file_wins_over_a_name(tmp_path, monkey
 def test_results_record_a_name_as_the_name_and_a_file_as_its_absolute_path(tmp_path, monkeypatch):
     monkeypatch.chdir(tmp_path)
     rig = load_arm("quanser_rotflex")
-    assert rig_settings(rig, "quanser_rotflex", None) == {
-        "rig": "quanser_rotflex", "arm": "quanser_rotflex", "window": None}
+    run = SimpleNamespace(name="run")
+    assert rig_settings(rig, "quanser_rotflex", [run], [None]) == {
+        "rig": "quanser_rotflex", "arm": "quanser_rotflex", "windows": {"run": None}}
     Path("rig.toml").touch()
-    assert rig_settings(rig, "rig.toml", (0.0, 1.0))["arm"] == str(tmp_path / "rig.toml")
+    settings = rig_settings(rig, "rig.toml", [run], [(0.0, 1.0)])
+    assert settings["arm"] == str(tmp_path / "rig.toml")
+    assert settings["windows"] == {"run": (0.0, 1.0)}
 
 
 def test_a_fits_rig_matches_the_same_rig_given_by_name_or_by_file():

@@ -114,3 +114,73 @@ def test_the_wheel_installs_and_runs_the_real_data_commands_outside_the_checkout
     for row in rows:
         assert set(row["nrmse"]) == {"joint_angle", "deflection_angle"}
         assert all(math.isfinite(v) and v > 0 for v in row["nrmse"].values()), row
+    _an_invented_rig_end_to_end(jaxflex, work, env)
+
+
+RULER = """\
+# A 0.3 m steel ruler on a hobby servo's hub, driven by PWM counts; an encoder on the hub and
+# an accelerometer taped a little short of the tip.
+name = "ruler"
+description = "0.3 m steel ruler, PWM-driven hub, encoder and accelerometer at 0.25 m"
+
+[link]
+length = 0.3
+width = 0.025
+thickness = 0.0008
+density = 7850.0
+
+[simulation]
+n_elements = 6
+
+[sampling]
+dt = 0.002
+duration = 1.2
+
+[parameters]
+E = { reference = 2.0e11, lower = 1.0e11, upper = 3.0e11 }
+J_h = { reference = 0.0004, lower = 1e-4, upper = 2e-3 }
+b_v = { reference = 0.002, lower = 1e-4, upper = 0.02 }
+tau_c = { reference = 0.002, fixed = true }
+alpha = { reference = 0.5, fixed = true }
+beta = { reference = 1e-4, fixed = true }
+
+[drive]
+type = "command"
+unit = "counts"
+torque_per_unit = { reference = 0.0002, lower = 5e-5, upper = 1e-3 }
+saturation = 255
+
+[[sensors]]
+type = "encoder"
+channel = "angle"
+counts_per_revolution = 2000
+
+[[sensors]]
+type = "accelerometer"
+channel = "acc"
+x = 0.25
+noise = 0.05
+"""
+
+
+def _an_invented_rig_end_to_end(jaxflex: list[str], work: Path, env: dict) -> None:
+    """A rig written as a user would (other geometry, a PWM drive whose gain is identified,
+    a sensor part-way along the link): simulate its log, identify with figures, validate with
+    a report, from the installed wheel."""
+    (work / "ruler.toml").write_text(RULER)
+    _run([*jaxflex, "simulate", "--arm", "ruler.toml", "--input", "pulse", "--amplitude", "200",
+          "--rest", "0.2", "--noise", "--seed", "2", "--out", "ruler_log.csv"], work, env)
+    _run([*jaxflex, "identify", "ruler_log.csv", "--arm", "ruler.toml", "--window", "auto",
+          "--generations", "4", "--population", "12", "--quiet", "--out", "ruler_fit.json",
+          "--plot", "ruler_fit.png"], work, env)
+    fit = json.loads((work / "ruler_fit.json").read_text())
+    assert fit["names"] == ["E", "J_h", "b_v", "torque_per_unit"]
+    assert fit["settings"]["channels"] == ["angle", "acc"]
+    assert fit["model_description"]["drive"]["unit"] == "counts"
+    _run([*jaxflex, "validate", "ruler_log.csv", "--fit", "ruler_fit.json", "--report",
+          "ruler_report"], work, env)
+    assert (work / "ruler_fit_ruler_log.png").is_file()
+    figures = sorted(p.name for p in (work / "ruler_report").glob("*.png"))
+    assert figures == ["frf.png", "ruler_log_time.png"]
+    channels = json.loads((work / "ruler_report" / "comparison.json").read_text())["channels"]
+    assert channels == {"angle": "rad", "acc": "m/s^2"}

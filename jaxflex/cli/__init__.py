@@ -38,8 +38,10 @@ class UsageError(ValueError):
     """A problem with the command line or its input files that the user can fix."""
 
 
-def load_records(paths: Sequence[str], *, resample: bool, unit_check: bool = True):
-    """Records from files and directories, each file once; problems are UsageErrors."""
+def load_records(paths: Sequence[str], *, resample: bool, unit_check: bool = True,
+                 channels: Sequence[str] = ()):
+    """Records from files and directories, each file once (``channels``: a rig's sensor
+    channels, :func:`jaxflex.data.load_record`); problems are UsageErrors."""
     from pathlib import Path
 
     from jaxflex._io import same_file
@@ -52,9 +54,11 @@ def load_records(paths: Sequence[str], *, resample: bool, unit_check: bool = Tru
             if not path.exists():
                 raise UsageError(f"{path}: record file not found")
             if path.is_dir():
-                records += list(load_dataset(path, resample=resample, unit_check=unit_check))
+                records += list(load_dataset(path, resample=resample, unit_check=unit_check,
+                                             channels=channels))
             else:
-                records.append(load_record(path, resample=resample, unit_check=unit_check))
+                records.append(load_record(path, resample=resample, unit_check=unit_check,
+                                           channels=channels))
         for i, r in enumerate(records):
             for earlier in records[:i]:
                 if same_file(r.source, earlier.source):

@@ -135,9 +135,12 @@ def refuse_two_link(records) -> None:
             )
 
 
-def load_rig_records(paths, args: argparse.Namespace):
-    """The records of ``paths`` (record options of ``args``); a two-link rig is refused."""
-    records = load_records(paths, resample=args.resample, unit_check=args.unit_check)
+def load_rig_records(paths, args: argparse.Namespace, model: Model | None = None):
+    """The records of ``paths`` (record options of ``args``; columns named as ``model``'s
+    sensors are theirs); a two-link rig is refused."""
+    channels = () if model is None else model.channels
+    records = load_records(paths, resample=args.resample, unit_check=args.unit_check,
+                           channels=channels)
     refuse_two_link(records)
     return records
 

@@ -85,7 +85,7 @@ def check_before_launch(args: argparse.Namespace) -> None:
         parse_seeds(args.seeds)
     rig, source = rig_of(args)
     model = with_effects(rig, args.effect)
-    records = load_rig_records(args.data, args)
+    records = load_rig_records(args.data, args, model)
     check_outputs(
         [("--out", args.out, JSON_SUFFIXES), ("--plot", args.plot, FIGURE_SUFFIXES)],
         overwrite=args.overwrite, inputs=[*sources(records), *arm_inputs(source)],

@@ -88,10 +88,10 @@ def run(args: argparse.Namespace) -> int:
         _, initial, fit = read_fit("--initial", args.initial, plain_parameters=True)
     rig, source = rig_of(args, fit)
     model = with_effects(rig, args.effect)
-    records = load_rig_records(args.data, args)
+    records = load_rig_records(args.data, args, model)
     holdout = None
     if args.holdout:
-        holdout = load_rig_records(args.holdout, args)
+        holdout = load_rig_records(args.holdout, args, model)
         for r in holdout:
             if any(same_file(r.source, f.source) for f in records):
                 raise UsageError(f"--holdout {r.source}: is also a record to fit; a held-out "

@@ -86,7 +86,7 @@ def run(args: argparse.Namespace) -> int:
         return status
     rig, source = rig_of(args)
     model = with_effects(rig, args.effect)
-    records = load_rig_records(args.data, args)
+    records = load_rig_records(args.data, args, model)
     out, *plot = check_outputs(
         [("--out", args.out, JSON_SUFFIXES), ("--plot", args.plot, FIGURE_SUFFIXES)]
         + [("--plot", p, FIGURE_SUFFIXES) for p in record_figures(args.plot, records)],

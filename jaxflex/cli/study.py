@@ -93,7 +93,7 @@ def run(args: argparse.Namespace) -> int:
     seeds = parse_seeds(args.seeds)
     rig, source = rig_of(args)
     model = with_effects(rig, args.effect)
-    records = load_rig_records(args.data, args)
+    records = load_rig_records(args.data, args, model)
     out, *plot = check_outputs(
         [("--out", args.out, JSON_SUFFIXES), ("--plot", args.plot, FIGURE_SUFFIXES)],
         overwrite=args.overwrite, inputs=[*sources(records), *arm_inputs(source)],

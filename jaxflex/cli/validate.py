@@ -109,7 +109,7 @@ def run(args: argparse.Namespace) -> int:
         raise UsageError(f"{stated[0]}: rig {model.name!r} states its sensors' noise (their "
                          "resolution and noise in its arm file), which sets the noise floor")
     # one by one: a held-out record may be sampled at another rate than the fitted one
-    records = [r for name in args.data for r in load_rig_records([name], args)]
+    records = [r for name in args.data for r in load_rig_records([name], args, model)]
     check_size(sum(r.n_samples for r in records), f"{len(records)} record(s)",
                n_elements=model.testbed.n_elements, limit=max_samples(args.max_samples))
     nyquist = 0.5 / max(r.dt for r in records)
