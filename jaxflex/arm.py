@@ -1,6 +1,8 @@
 """An arm: everything that describes one rig, from an arm file or built in Python.
 
-An arm file is TOML (read with the standard library's :mod:`tomllib`)::
+An arm file is TOML (read with the standard library's :mod:`tomllib`) in UTF-8; a file saved
+with a byte-order mark, UTF-8 or UTF-16, is read as well, and other bytes are refused naming the
+line::
 
     name = "reference"
     [link]                    # from the clamp to the tip

@@ -7,7 +7,9 @@ simulation starts from rest) and re-zeroes each sensor channel at rest, which re
 sensors' offsets: the model's readings are taken relative to rest
 (:meth:`~jaxflex.sensors.Sensor.reading`); a sensor with ``rezero=False`` keeps the record's zero,
 less its stated offset. The input keeps its own name and unit; the rig's drive
-turns it into hub torque. A rig without sensors reads records of the simulator's outputs (the
+turns it into hub torque. A link reading no elastic link gives in its unit (a deflection longer
+than the link, a strain above 1 %, a deflection angle above 1 rad) is refused as logged in
+another unit. A rig without sensors reads records of the simulator's outputs (the
 reference format) as they are, cut to the window.
 
 :func:`validate` simulates a fit on such records and scores each channel (NRMSE, percent);
