@@ -21,3 +21,8 @@ def finite_float(value: object, name: str, *, minimum: float | None = None,
     if minimum is not None and (x <= minimum if strict else x < minimum):
         raise ValueError(f"{name}={value!r} must be {'>' if strict else '>='} {minimum!r}")
     return x
+
+
+def shown(value: object) -> str:
+    """``value`` as an error message shows a wrong argument: ``123 (int)``, ``None``."""
+    return "None" if value is None else f"{value!r} ({type(value).__name__})"

@@ -1,6 +1,8 @@
 """An arm: everything that describes one rig, from an arm file or built in Python.
 
-An arm file is TOML (read with the standard library's :mod:`tomllib`)::
+An arm file is TOML (read with the standard library's :mod:`tomllib`) in UTF-8; a file saved
+with a byte-order mark, UTF-8 or UTF-16, is read as well, and other bytes are refused naming the
+line::
 
     name = "reference"
     [link]                    # from the clamp to the tip
@@ -64,9 +66,10 @@ import difflib
 import math
 import os
 import tomllib
-from collections.abc import Mapping
+from collections.abc import Iterable, Mapping
 from typing import Any
 
+from jaxflex._arguments import shown
 from jaxflex.drives import DRIVES, CommandDrive, Drive
 from jaxflex.effects import (
     ChannelEffect,
@@ -79,7 +82,7 @@ from jaxflex.effects import (
 from jaxflex.model import Model
 from jaxflex.parameters import BASE_PARAMETERS, ParameterSpec
 from jaxflex.sensors import SENSORS, Sensor
-from jaxflex.testbed import Testbed
+from jaxflex.testbed import Testbed, link_fault
 
 _BASE = {spec.name: spec for spec in BASE_PARAMETERS}
 MAX_ELEMENTS = 1000
@@ -97,16 +100,47 @@ def load_arm(path: str | os.PathLike) -> Model:
     (``load_arm("quanser_rotflex")``; :mod:`jaxflex.rigs`): the rig it describes."""
     from jaxflex.rigs import locate
 
+    if not isinstance(path, (str, os.PathLike)):
+        raise TypeError(f"load_arm: path must be a file path or a packaged rig's name, got "
+                        f"{shown(path)}")
     path = locate(path)
     where = os.fspath(path)
     try:
         with open(path, "rb") as f:
-            data = tomllib.load(f)
+            raw = f.read()
     except FileNotFoundError:
         raise ArmError(f"{where}: arm file not found") from None
+    try:
+        data = tomllib.loads(_arm_text(raw, where))
     except tomllib.TOMLDecodeError as err:
         raise ArmError(f"{where}: not valid TOML ({err})") from None
     return arm_from_dict(data, where)
+
+
+_BOMS = ((b"\xef\xbb\xbf", "utf-8"), (b"\xff\xfe", "utf-16-le"), (b"\xfe\xff", "utf-16-be"))
+
+
+def _arm_text(raw: bytes, where: str) -> str:
+    """An arm file's text: UTF-8 with or without a byte-order mark, or UTF-16 with one; any
+    other encoding is an ArmError naming the file, the line and the encoding."""
+    encoding, skipped = "utf-8", 0
+    for bom, name in _BOMS:
+        if raw.startswith(bom):
+            raw, encoding, skipped = raw[len(bom):], name, len(bom)
+            break
+    else:
+        if raw[:2].count(0) == 1:  # an ASCII character and a zero byte: UTF-16, no mark
+            raise ArmError(f"{where}: line 1: the file looks like UTF-16 without a byte-order "
+                           "mark; save it as UTF-8")
+    try:
+        return raw.decode(encoding)
+    except UnicodeDecodeError as err:
+        line = raw[:err.start].count(b"\n" if encoding == "utf-8" else "\n".encode(encoding)) + 1
+        name = "UTF-8" if encoding == "utf-8" else "UTF-16"
+        guess = " (Latin-1 or Windows-1252?)" if encoding == "utf-8" else ""
+        byte = f"byte {skipped + err.start} (0x{raw[err.start]:02x})"
+        raise ArmError(f"{where}: line {line}: {byte} is not {name}{guess}; save the arm file "
+                       "as UTF-8") from None
 
 
 def arm_from_dict(data: Mapping[str, Any], where: str = "arm") -> Model:
@@ -119,18 +153,29 @@ def arm_from_dict(data: Mapping[str, Any], where: str = "arm") -> Model:
     thickness = link.number("thickness")
     density = _density(link, length, width * thickness)
     clamp_offset = link.number("clamp_offset", 0.0, minimum=0.0)
-    link.done()
+    link.done(known=_MASS_KEYS)
     simulation = top.table("simulation", required=False)
     n_elements = simulation.integer("n_elements", 10, maximum=MAX_ELEMENTS)
     n_substeps = simulation.integer("n_substeps", 2, maximum=MAX_SUBSTEPS)
     n_modes = (simulation.integer("n_modes", maximum=2 * n_elements)
                if "n_modes" in simulation.data else None)
     omega_s = simulation.number("friction_smoothing", Testbed.omega_s)
-    simulation.done()
+    simulation.done(known=("n_modes",))
     sampling = top.table("sampling", required=False)
     dt = sampling.number("dt", Testbed.dt)
     duration = sampling.number("duration", Testbed.duration)
     sampling.done()
+    specs, fixed = _parameters(top.table("parameters"))
+    modulus = next(spec for spec in specs if spec.name == "E")
+    fault = link_fault(length=length, width=width, thickness=thickness, density=density,
+                       n_elements=n_elements, clamp_offset=clamp_offset,
+                       moduli=(modulus.lower, modulus.upper))
+    if fault is not None:
+        setting, why = fault
+        if setting == "density":  # the mass key the file gives
+            setting = next(k for k in _MASS_KEYS if k in link.data)
+        raise ArmError(f"{where}: link.{setting}: {link.data[setting]!r} {_UNITS[setting]} "
+                       f"{why}")
     testbed = Testbed(
         length=length,
         width=width,
@@ -142,9 +187,8 @@ def arm_from_dict(data: Mapping[str, Any], where: str = "arm") -> Model:
         duration=duration,
         clamp_offset=clamp_offset,
     )
-    specs, fixed = _parameters(top.table("parameters"))
     drive, drive_gain = _drive(top.table("drive"))
-    sensors, calibrations = _sensors(top, length)
+    sensors, calibrations = _sensors(top, length, drive)
     effects = _effects(top) + calibrations + drive_gain
     name = top.string("name")
     description = top.string("description", "")
@@ -276,7 +320,7 @@ def _toml_value(value: Any) -> str:
 
 def _density(link: _Table, length: float, area: float) -> float:
     """Density from exactly one of ``density``, ``mass_per_length`` or ``mass``."""
-    given = [k for k in ("density", "mass_per_length", "mass") if k in link.data]
+    given = [k for k in _MASS_KEYS if k in link.data]
     if len(given) != 1:
         found = f"got {[link.key(k) for k in given]}" if given else "got none"
         raise ArmError(
@@ -363,7 +407,7 @@ def _command_drive(table: _Table) -> tuple[CommandDrive, tuple[DriveGain, ...]]:
     else:
         gain = table.number("torque_per_unit")
     saturation = table.number("saturation") if "saturation" in table.data else None
-    table.done()
+    table.done(known=("saturation",))
     try:
         drive = CommandDrive(torque_per_unit=gain, saturation=saturation, unit=unit)
         if bounds is None:
@@ -373,9 +417,12 @@ def _command_drive(table: _Table) -> tuple[CommandDrive, tuple[DriveGain, ...]]:
         raise ArmError(f"{table.where}: {table.prefix[:-1]}: {err}") from None
 
 
-def _sensors(top: _Table, length: float) -> tuple[tuple[Sensor, ...], tuple[Effect, ...]]:
+def _sensors(
+    top: _Table, length: float, drive: Drive
+) -> tuple[tuple[Sensor, ...], tuple[Effect, ...]]:
     """The ``[[sensors]]`` tables: ``type`` picks the class, the other keys are its fields; and
-    the effects that identify each gain or offset given as a table of bounds."""
+    the effects that identify each gain or offset given as a table of bounds. Each sensor logs
+    its own channel, neither time nor the drive's input."""
     entries = top._get("sensors", [])
     if not isinstance(entries, list):
         raise top._wrong("sensors", "an array of tables ([[sensors]])", entries)
@@ -425,7 +472,7 @@ def _sensors(top: _Table, length: float) -> tuple[tuple[Sensor, ...], tuple[Effe
                 values[f.name] = table.number(f.name, minimum=-math.inf)
             else:
                 values[f.name] = table.number(f.name, minimum=0.0)
-        table.done()
+        table.done(known=["type", *(f.name for f in dataclasses.fields(SENSORS[kind]))])
         if values.get("x", 0.0) > length:
             raise ArmError(
                 f"{table.where}: {table.key('x')}: {values['x']!r} m lies beyond the link "
@@ -435,6 +482,7 @@ def _sensors(top: _Table, length: float) -> tuple[tuple[Sensor, ...], tuple[Effe
             sensors.append(SENSORS[kind](**values))
         except ValueError as err:
             raise ArmError(f"{table.where}: sensors[{i}]: {err}") from None
+        _check_channel(table, sensors, drive)
         if bounds is not None:
             calibrations.append(_gain_effect(top.where, sensors[-1].channel, bounds))
         if offset_bounds is not None:
@@ -442,7 +490,25 @@ def _sensors(top: _Table, length: float) -> tuple[tuple[Sensor, ...], tuple[Effe
     return tuple(sensors), tuple(calibrations)
 
 
+def _check_channel(table: _Table, sensors: list[Sensor], drive: Drive) -> None:
+    """The last of ``sensors`` (read from ``table``) logs a channel of its own: not one an
+    earlier sensor logs, not time, not the drive's input."""
+    channel = sensors[-1].channel
+    key = f"{table.where}: {table.key('channel')}"
+    for j, other in enumerate(sensors[:-1]):
+        if other.channel == channel:
+            raise ArmError(f"{key}: sensors[{j}] logs the channel {channel!r} too; each sensor "
+                           "logs its own channel")
+    if channel in ("time", drive.name):
+        what = "time" if channel == "time" else f"the {drive.name} drive's input"
+        raise ArmError(f"{key}: {channel!r} is {what}, not a reading; name the sensor's own "
+                       "column")
+
+
 _MISSING: Any = object()
+_MASS_KEYS = ("density", "mass_per_length", "mass")
+_UNITS = {"length": "m", "width": "m", "thickness": "m", "clamp_offset": "m",
+          "density": "kg/m³", "mass_per_length": "kg/m", "mass": "kg"}
 
 
 class _Table:
@@ -518,14 +584,16 @@ class _Table:
         value = self._get(name, _MISSING if required else {})
         return _Table(value, self.where, f"{self.prefix}{name}.")
 
-    def done(self) -> None:
-        """Refuse the first key that nothing read (a misspelling, or a setting jaxflex lacks)."""
+    def done(self, known: Iterable[str] = ()) -> None:
+        """Refuse the first key that nothing read (a misspelling, or a setting jaxflex lacks);
+        ``known`` names the keys the table may hold besides those read (optional ones)."""
+        keys = sorted(self.used | set(known))
         for name in self.data:
             if name not in self.used:
-                close = difflib.get_close_matches(name, sorted(self.used), n=1, cutoff=0.6)
+                close = difflib.get_close_matches(name, keys, n=1, cutoff=0.6)
                 hint = f"; did you mean {close[0]!r}?" if close else ""
-                known = f"; known keys: {sorted(self.used)}" if not close else ""
-                raise ArmError(f"{self.where}: {self.key(name)}: unknown key{hint}{known}")
+                listed = f"; known keys: {keys}" if not close else ""
+                raise ArmError(f"{self.where}: {self.key(name)}: unknown key{hint}{listed}")
 
 
 def _kind(value: Any) -> str:

@@ -34,7 +34,7 @@ from jaxflex.arm import MAX_ELEMENTS
 from jaxflex.diagnosis import Noise, noise_levels
 from jaxflex.evolve import STRATEGIES, get_strategy, run
 from jaxflex.model import Model
-from jaxflex.objective import Objective, Records, build_objective
+from jaxflex.objective import Objective, Records, build_objective, check_records
 from jaxflex.refine import Refinement, uncertainty
 from jaxflex.refine import refine as refine_parameters
 from jaxflex.testbed import Testbed
@@ -560,6 +560,7 @@ def identify(
     Gauss–Newton uncertainty at ``level``.
     """
     t_start = time.perf_counter()
+    check_records(records, "identify")
     method = check_method(method)
     objective = build_objective(
         records, model, weights=weights, channels=channels, fixed=fixed, bounds=bounds,

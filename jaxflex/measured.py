@@ -7,7 +7,9 @@ simulation starts from rest) and re-zeroes each sensor channel at rest, which re
 sensors' offsets: the model's readings are taken relative to rest
 (:meth:`~jaxflex.sensors.Sensor.reading`); a sensor with ``rezero=False`` keeps the record's zero,
 less its stated offset. The input keeps its own name and unit; the rig's drive
-turns it into hub torque. A rig without sensors reads records of the simulator's outputs (the
+turns it into hub torque. A link reading no elastic link gives in its unit (a deflection longer
+than the link, a strain above 1 %, a deflection angle above 1 rad) is refused as logged in
+another unit. A rig without sensors reads records of the simulator's outputs (the
 reference format) as they are, cut to the window.
 
 :func:`validate` simulates a fit on such records and scores each channel (NRMSE, percent);
@@ -26,7 +28,7 @@ from jaxflex.metrics import nrmse
 from jaxflex.model import Model
 from jaxflex.objective import check_inputs, fitted_channels
 from jaxflex.rest import REST_SPAN, rest_bands, why_not_at_rest
-from jaxflex.sensors import Sensor, calibrated, readings
+from jaxflex.sensors import DeflectionSensor, Sensor, StrainGauge, calibrated, readings
 from jaxflex.simulation import simulate
 
 Window = tuple[float, float] | None
@@ -63,9 +65,41 @@ def model_record(model: Model, record: Record, window: Window = None) -> Record:
         reading = cut.channel(sensor.channel)
         zero = float(np.mean(reading[:n_rest])) if sensor.rezero else sensor.offset
         columns[sensor.channel] = reading - zero
+        _check_scale(model, record.name, sensor, columns[sensor.channel])
     found = ", ".join(s.channel for s in chosen)
     ready = cut.with_columns(columns, note=f"sensors {found} re-zeroed at rest")
     return ready.replace(metadata=ready.metadata | {"rig": model.name, "sensors": found})
+
+
+MAX_STRAIN = 0.01
+"""A bending strain above 1 % is not an elastic link's (steel yields near 0.2 %): µε or %."""
+MAX_DEFLECTION_ANGLE = 1.0
+"""A link deflection angle above 1 rad is no small deflection: mrad or degrees."""
+
+
+def _check_scale(model: Model, name: str, sensor: Sensor, reading: np.ndarray) -> None:
+    """Stop (one-line ValueError) on a link reading no elastic link gives in the sensor's unit:
+    a deflection longer than the link, a strain above :data:`MAX_STRAIN`, a deflection angle
+    above :data:`MAX_DEFLECTION_ANGLE`: the channel is logged in another unit."""
+    peak = float(np.max(np.abs(reading))) if reading.size else 0.0
+    quantity = peak / abs(sensor.gain)
+    length = model.testbed.length
+    if isinstance(sensor, DeflectionSensor) and quantity > length:
+        why = (f"a deflection longer than the link ({length!r} m); is it in mm (or mrad)? a "
+               "deflection sensor's channel must be in m")
+    elif isinstance(sensor, StrainGauge) and sensor.calibration == "strain" and (
+            quantity > MAX_STRAIN):
+        why = (f"a strain above {MAX_STRAIN:.0%} (steel yields near 0.2 %); is it in µε or %? a "
+               "strain channel must be in m/m")
+    elif isinstance(sensor, StrainGauge) and sensor.calibration == "deflection_angle" and (
+            quantity > MAX_DEFLECTION_ANGLE):
+        why = (f"a deflection angle above {MAX_DEFLECTION_ANGLE:g} rad; is it in mrad or "
+               "degrees? a deflection angle must be in rad")
+    else:
+        return
+    unit = "" if sensor.unit == "1" else f" {sensor.unit}"
+    raise ValueError(f"record {name!r}: channel {sensor.channel!r} reaches {peak:.6g}{unit} from "
+                     f"rest, {why}")
 
 
 def prepare(

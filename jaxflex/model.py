@@ -19,6 +19,7 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array
 
+from jaxflex._arguments import shown
 from jaxflex.drives import Drive, TorqueDrive
 from jaxflex.effects._base import Effect, Structure, joint_friction
 from jaxflex.fem import BeamPatterns
@@ -62,12 +63,23 @@ class Model(eqx.Module):
     def __post_init__(self) -> None:
         if isinstance(self.fixed, str):
             raise TypeError(f"fixed must be a tuple of parameter names, got {self.fixed!r}")
+        if not isinstance(self.testbed, Testbed):
+            raise TypeError(f"testbed must be a Testbed (e.g. Testbed(length=0.4)), got "
+                            f"{shown(self.testbed)}")
+        if not isinstance(self.drive, Drive):
+            raise TypeError(f"drive must be a Drive (e.g. VoltageDrive(...)), got "
+                            f"{shown(self.drive)}")
+        for field, example in (("sensors", "(Encoder(),)"), ("effects", "(Payload(),)")):
+            value = getattr(self, field)
+            if isinstance(value, (str, Mapping)) or not isinstance(value, Iterable):
+                raise TypeError(f"{field} must be a tuple of {field[:-1].capitalize()}s (e.g. "
+                                f"{example}), got {shown(value)}")
         self.effects = tuple(self.effects)
         self.sensors = tuple(self.sensors)
         self.fixed = tuple(self.fixed)
         for sensor in self.sensors:  # checked here: a station needs a position
             if not isinstance(sensor, Sensor):
-                raise TypeError(f"sensors must be Sensor instances, got {type(sensor).__name__}")
+                raise TypeError(f"sensors must be Sensor instances, got {shown(sensor)}")
         positions = {s.position for s in self.sensors if s.position is not None}
         self.stations = tuple(sorted(set(self.stations) | positions))
 

@@ -32,6 +32,7 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, ArrayLike, Float, Scalar
 
+from jaxflex._arguments import shown
 from jaxflex.data import Dataset, Record
 from jaxflex.diagnosis import Noise, noise_levels
 from jaxflex.evolve._base import sanitize_fitness
@@ -198,6 +199,19 @@ def fitted_channels(records: Records, model: Model) -> tuple[str, ...]:
     return found
 
 
+def check_records(records: Records, function: str) -> None:
+    """A TypeError naming ``function`` and its ``records`` argument unless it is a Record, a
+    Dataset or an iterable of records."""
+    if isinstance(records, (Record, Dataset)):
+        return
+    if isinstance(records, (str, bytes, Mapping)) or not isinstance(records, Iterable):
+        raise TypeError(f"{function}: records must be a Record, a Dataset or records, got "
+                        f"{shown(records)}")
+    for i, record in enumerate(records if isinstance(records, Sequence) else ()):
+        if not isinstance(record, Record):
+            raise TypeError(f"{function}: records[{i}] must be a Record, got {shown(record)}")
+
+
 def record_tuple(records: Records) -> tuple[Record, ...]:
     """One record or several as a tuple (any sampling intervals; at least one record)."""
     records = (records,) if isinstance(records, Record) else tuple(records)
@@ -290,11 +304,24 @@ def free_specs(
         value = np.asarray(value, dtype=np.float64)
         if value.shape != () or not np.isfinite(value):
             raise ValueError(f"fixed value of {name} must be one finite number, got {value!r}")
+        _check_held(space[name], float(value))
         values[name] = jnp.asarray(value)
     free = tuple(s for s in space.specs if s.name not in fixed)
     if not free:
         raise ValueError("every parameter is fixed: nothing left to identify")
     return free, values
+
+
+def _check_held(spec: ParameterSpec, value: float) -> None:
+    """A parameter is held within the rig's bounds for it, at its reference value (the rig's
+    own fixed value) or at its null (the effect off)."""
+    if spec.lower <= value <= spec.upper or value in (spec.reference, spec.null):
+        return
+    raise ValueError(
+        f"fixed value {spec.name}={value!r} lies outside the rig's bounds [{spec.lower!r}, "
+        f"{spec.upper!r}] {spec.unit} for {spec.name}; hold it within them, or widen them "
+        "in the arm file"
+    )
 
 
 def build_objective(
@@ -317,6 +344,7 @@ def build_objective(
     Channels of weight 0 are left out of the objective altogether. Every argument is validated
     and errors name the record, channel or parameter at fault.
     """
+    check_records(records, "build_objective")
     model = Model() if model is None else model
     if not isinstance(model, Model):
         raise TypeError(f"model must be a jaxflex Model, got {type(model).__name__}")
@@ -387,5 +415,5 @@ def build_objective(
 
 
 __all__ = ["DEFAULT_CHANNELS", "Objective", "as_dataset", "build_objective", "check_channels",
-           "check_inputs", "check_weights", "fitted_channels", "free_specs", "noise_weights",
-           "record_tuple"]
+           "check_inputs", "check_records", "check_weights", "fitted_channels", "free_specs",
+           "noise_weights", "record_tuple"]

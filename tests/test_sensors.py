@@ -154,7 +154,7 @@ def test_rotflex_arm_sensors(tmp_path):
          "sensors[0].counts_per_revolution: expected a whole number"),
         ('[[sensors]]\ntype = "accelerometer"\nchannel = "tip_acceleration"\n'
          '[[sensors]]\ntype = "accelerometer"\nchannel = "tip_acceleration"',
-         "two sensors log the channel(s) ['tip_acceleration']"),
+         "sensors[1].channel: sensors[0] logs the channel 'tip_acceleration' too"),
     ],
 )
 def test_sensor_table_errors_name_file_and_key(tmp_path, extra, message):

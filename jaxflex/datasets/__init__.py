@@ -29,6 +29,7 @@ from jaxflex.datasets._source import (
     DataUnavailable,
     Source,
     cache_dir,
+    check_data_dir,
     fetch_files,
     local_data_dir,
 )
@@ -67,11 +68,13 @@ def available() -> tuple[DatasetInfo, ...]:
 
 def fetch(name: str, data_dir: str | os.PathLike | None = None) -> dict[str, Path]:
     """Paths of the original files of data set ``name``, each verified against its SHA-256."""
+    check_data_dir(data_dir, "datasets.fetch")
     return fetch_files(_module(name).SOURCE, data_dir)
 
 
 def load(name: str, data_dir: str | os.PathLike | None = None) -> dict[str, Record]:
     """The records of data set ``name``, converted from its verified original files."""
+    check_data_dir(data_dir, "datasets.load")
     module = _module(name)
     return module.convert(fetch_files(module.SOURCE, data_dir))
 
@@ -86,6 +89,7 @@ def write(
     """Write each record of ``name`` as ``out/<record>.csv``: every file is checked first (an
     existing one is refused unless ``overwrite``), before anything is fetched, and the files
     appear together, or none of them."""
+    check_data_dir(data_dir, "datasets.write")
     module = _module(name)
     if not os.fspath(out):
         raise DatasetError("out='' names no folder; give the folder for the record files")

@@ -69,8 +69,16 @@ class Source:
         return f"github.com/{self.repository} @ {self.commit[:7]} ({self.licence_name})"
 
 
+def check_data_dir(data_dir: object, function: str) -> None:
+    """A TypeError naming ``function`` and ``data_dir`` unless it is a folder's path or None."""
+    if data_dir is not None and not isinstance(data_dir, (str, os.PathLike)):
+        raise TypeError(f"{function}: data_dir must be a folder's path or None, got "
+                        f"{data_dir!r} ({type(data_dir).__name__})")
+
+
 def local_data_dir(data_dir: str | os.PathLike | None = None) -> Path | None:
     """The local copy to use: ``data_dir``, else ``$JAXFLEX_DATA_DIR``, else None."""
+    check_data_dir(data_dir, "local_data_dir")
     chosen = data_dir if data_dir is not None else os.environ.get(DATA_DIR_VARIABLE) or None
     if chosen is None:
         return None

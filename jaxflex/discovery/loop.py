@@ -31,7 +31,13 @@ from jaxflex.discovery.report import Confirmation, DiscoveryFit, DiscoveryReport
 from jaxflex.discovery.scores import ALPHA, ScoreResult
 from jaxflex.effects import Effect
 from jaxflex.model import Model
-from jaxflex.objective import as_dataset, check_channels, check_weights, fitted_channels
+from jaxflex.objective import (
+    as_dataset,
+    check_channels,
+    check_records,
+    check_weights,
+    fitted_channels,
+)
 from jaxflex.simulation import Outputs
 
 MIN_EXPLAINED = 0.9
@@ -226,6 +232,7 @@ def discover(
     (``None``: the whole record). Returns a :class:`DiscoveryReport`.
     """
     t0 = time.perf_counter()
+    check_records(records, "discover")
     records = as_dataset(records)
     holdout = as_dataset(holdout) if holdout is not None else None
     model = Model() if model is None else model
