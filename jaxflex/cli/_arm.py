@@ -71,14 +71,18 @@ def rig_of(args: argparse.Namespace, fit=None) -> tuple[Model, str | None]:
 
 
 def with_effects(model: Model, names: list[str], option: str = "--effect") -> Model:
-    """``model`` with the named effects added (an unknown or doubled name names the option)."""
-    from jaxflex.cli._options import model_from
+    """``model`` with the named effects added (an unknown or doubled name, or one the rig
+    cannot take, names the option)."""
+    from jaxflex.cli._options import effects_from
 
-    added = model_from(names, option).effects
+    added = effects_from(names, option)
     twice = sorted({e.name for e in added} & set(model.effect_names))
     if twice:
         raise UsageError(f"{option} {twice[0]}: the rig {model.name!r} has it already")
-    return model.with_effects(*added)
+    try:
+        return model.with_effects(*added)
+    except ValueError as err:
+        raise UsageError(f"{option}: {err}") from None
 
 
 def windows_of(args: argparse.Namespace, model: Model, records) -> list[Window]:

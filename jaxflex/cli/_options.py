@@ -96,19 +96,19 @@ def add_fit_options(p: argparse.ArgumentParser) -> None:
                        metavar=o.metavar, help=o.help)
 
 
-def model_from(effects: list[str], option: str = "--effect"):
-    """The reference model with the named effects added (an unknown name names the option)."""
+def effects_from(names: list[str], option: str = "--effect") -> tuple:
+    """The named effects (an unknown name names the option)."""
     from jaxflex.effects import get_effect
-    from jaxflex.model import Model
 
     added = []
-    for name in effects:
+    for name in names:
         try:
             added.append(get_effect(name))
         except (KeyError, ValueError) as exc:
             message = exc.args[0] if exc.args else exc
             raise UsageError(f"{option} {name}: {message}") from None
-    return Model().with_effects(*added)
+    return tuple(added)
+
 
 
 def pair_values(args: argparse.Namespace) -> dict[str, dict[str, Any]]:
@@ -152,5 +152,5 @@ def add_record_options(p: argparse.ArgumentParser) -> None:
 
 __all__ = [
     "PAIR_OPTIONS", "PairOption", "add_fit_options", "add_record_options", "finite_number",
-    "fit_keywords", "model_from", "pair_values",
+    "effects_from", "fit_keywords", "pair_values",
 ]
