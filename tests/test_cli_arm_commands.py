@@ -99,7 +99,7 @@ def test_study_with_an_arm_fits_the_sensor_channels(tmp_path, rotflex_log):
                  str(out)]) == 0
     saved = json.loads(out.read_text())["settings"]
     assert saved["arm"] == str((ARMS / "quanser_rotflex.toml").resolve())
-    assert saved["window"] == [0.0, 1.4]
+    assert saved["windows"] == {"log": [0.0, 1.4]}
 
 
 def _offset_log(folder, tau_0: float):
