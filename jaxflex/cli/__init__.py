@@ -69,11 +69,16 @@ def load_records(paths: Sequence[str], *, resample: bool, unit_check: bool = Tru
 
 
 def build_parser() -> argparse.ArgumentParser:
+    """The parser of every command; building it imports no JAX (each command imports what it
+    computes with when it runs), so ``--help`` and ``--version`` answer at once."""
+    from jaxflex import __version__
+
     parser = argparse.ArgumentParser(
         prog="jaxflex",
         description="Identify flexible-link manipulators by differentiable simulation.",
         epilog="--debug (anywhere on the line) shows the traceback of an error.",
     )
+    parser.add_argument("--version", action="version", version=f"%(prog)s {__version__}")
     subparsers = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
     for name in COMMANDS:
         try:

@@ -23,7 +23,6 @@ from jaxflex.cli._checks import (
 )
 from jaxflex.cli._options import add_record_options
 from jaxflex.cli.identify import sources
-from jaxflex.comparison import DEFAULT_T_END, FRFSettings, compare
 
 HELP = "compare a fitted model with measured records: metrics table and figures"
 """One-line summary of ``jaxflex validate`` in the command list."""
@@ -52,9 +51,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument(
         "--t-end",
         type=positive_float,
-        default=DEFAULT_T_END,
         metavar="S",
-        help="time-domain metrics over 0 <= t <= S seconds (default: %(default)s)",
+        help="time-domain metrics over 0 <= t <= S seconds (default: 2 s)",
     )
     p.add_argument(
         "--f-max",
@@ -88,6 +86,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
 
 def run(args: argparse.Namespace) -> int:
     from jaxflex._io import all_or_nothing
+    from jaxflex.comparison import DEFAULT_T_END, FRFSettings, compare
 
     model, params, fit = read_fit("--fit", args.fit)
     if with_arm(fit) is not None:
@@ -119,7 +118,7 @@ def run(args: argparse.Namespace) -> int:
         params,
         records,
         fit_names=[n for n in fit.record_names if n in records.names],
-        t_end=args.t_end,
+        t_end=DEFAULT_T_END if args.t_end is None else args.t_end,
         frf=frf,
         encoder_counts=args.encoder_counts,
         accel_sigma=args.accel_sigma,
