@@ -170,7 +170,7 @@ def run_study(
     identify_kwargs.setdefault("intervals", False)
     runs = []
     jobs = [(m, s) for m in methods for s in seeds]
-    bar = Progress(jobs, label="study", enabled=progress)
+    bar = Progress(jobs, label="study", enabled=progress, each_stage=True)
     names: tuple[str, ...] = ()
     for method, seed in bar:
         fit = identify(

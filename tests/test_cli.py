@@ -1,18 +1,26 @@
 """The ``jaxflex`` command as a whole: it answers ``--help`` and ``--version`` without loading
-JAX."""
+JAX, and long commands show progress by one rule (a bar on a terminal, a line per stage in a
+file, ``JAXFLEX_PROGRESS`` forcing either, ``--quiet`` silencing)."""
 
 from __future__ import annotations
 
+import argparse
 import importlib.metadata
+import json
 import os
 import subprocess
 import sys
 from pathlib import Path
 
+import pytest
+
 import jaxflex
+from jaxflex._progress import ENVIRONMENT_SWITCH
 from jaxflex.cli import COMMANDS, build_parser, main
 
 ROOT = Path(jaxflex.__file__).parents[1]
+EXAMPLE = ROOT / "jaxflex" / "data" / "example_pulse.csv"
+TINY_SEARCH = ["--generations", "2", "--population", "8", "--no-refine"]
 HEAVY = ("jax", "jaxlib", "equinox", "optimistix", "scipy", "matplotlib")
 """What a computing command imports and ``--help`` must not."""
 
@@ -51,3 +59,43 @@ def test_validate_help_states_the_default_window():
 
     help_text = " ".join(command_parser("validate").format_help().split())
     assert f"(default: {DEFAULT_T_END:g} s)" in help_text
+
+
+def test_identify_into_a_file_writes_a_line_per_stage_and_no_bar(monkeypatch, tmp_path):
+    """Redirected to a log, the progress is one line per finished stage: no carriage returns
+    of a bar's updates."""
+    monkeypatch.delenv(ENVIRONMENT_SWITCH, raising=False)
+    log = tmp_path / "log.txt"
+    with log.open("w") as stream:
+        monkeypatch.setattr(sys, "stderr", stream)
+        status = main(["identify", str(EXAMPLE), *TINY_SEARCH, "--out", str(tmp_path / "f.json")])
+    text = log.read_text()
+    assert status == 0 and "\r" not in text
+    lines = text.splitlines()
+    assert [line.split(":")[0] for line in lines] == ["DE", "intervals"]
+    assert lines[0].startswith("DE: 2/2 in ") and ", best " in lines[0]
+
+
+def test_quiet_silences_the_progress(monkeypatch, tmp_path, capsys):
+    monkeypatch.setenv(ENVIRONMENT_SWITCH, "1")
+    status = main(["identify", str(EXAMPLE), *TINY_SEARCH, "--quiet",
+                   "--out", str(tmp_path / "f.json")])
+    assert status == 0 and capsys.readouterr().err == ""
+
+
+@pytest.mark.parametrize("command", ["identify", "study", "discover", "design", "validate"])
+def test_every_long_command_takes_quiet(command):
+    """One option, one rule: each long command has ``--quiet`` and no other progress switch."""
+    options = {o for a in command_parser(command)._actions for o in a.option_strings
+               if a.help != argparse.SUPPRESS}
+    assert "--quiet" in options and "--progress" not in options
+
+
+def test_discover_shows_a_bar_when_the_switch_forces_it(monkeypatch, tmp_path, capsys):
+    """``JAXFLEX_PROGRESS=1``: a tqdm bar on stderr, though stderr is not a terminal."""
+    monkeypatch.setenv(ENVIRONMENT_SWITCH, "1")
+    start = tmp_path / "start.json"
+    start.write_text(json.dumps({k: float(v) for k, v in jaxflex.reference_parameters().items()}))
+    assert main(["discover", str(EXAMPLE), "--initial", str(start), "--max-steps", "0"]) == 0
+    err = capsys.readouterr().err
+    assert "\rdiscover: 100%|" in err and "| 1/1 [" in err

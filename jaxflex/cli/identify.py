@@ -20,7 +20,13 @@ from jaxflex.cli._checks import (
     positive_int,
     seed,
 )
-from jaxflex.cli._options import add_fit_options, add_record_options, fit_keywords, model_from
+from jaxflex.cli._options import (
+    add_fit_options,
+    add_quiet_option,
+    add_record_options,
+    fit_keywords,
+    model_from,
+)
 from jaxflex.cli._processes import add_process_arguments, enter
 
 HELP = "identify the parameters from measured records (DE, GA or PSO + refinement)"
@@ -44,7 +50,7 @@ def add_search_arguments(p: argparse.ArgumentParser) -> None:
     add_fit_options(p)
     add_record_options(p)
     p.add_argument("--overwrite", action="store_true", help="replace existing output files")
-    p.add_argument("--quiet", action="store_true", help="no progress bar")
+    add_quiet_option(p)
     add_process_arguments(p)
 
 

@@ -21,7 +21,7 @@ from jaxflex.cli._checks import (
     positive_int,
     read_fit,
 )
-from jaxflex.cli._options import add_record_options
+from jaxflex.cli._options import add_quiet_option, add_record_options
 from jaxflex.cli.identify import sources
 
 HELP = "compare a fitted model with measured records: metrics table and figures"
@@ -80,12 +80,16 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         help="accelerometer noise standard deviation (m/s^2), for the noise floor",
     )
     add_window_argument(p)
+    add_quiet_option(p)
     p.add_argument("--json", metavar="TABLE.json", help="for a fit made with --arm: the scores")
     p.set_defaults(func=run)
 
 
 def run(args: argparse.Namespace) -> int:
+    import time
+
     from jaxflex._io import all_or_nothing
+    from jaxflex._progress import stage
     from jaxflex.comparison import DEFAULT_T_END, FRFSettings, compare
 
     model, params, fit = read_fit("--fit", args.fit)
@@ -110,6 +114,7 @@ def run(args: argparse.Namespace) -> int:
         targets = [("--report", p, None) for p in report_paths(records.names, directory,
                                                                 args.format)]
     check_outputs(targets, overwrite=args.overwrite, inputs=[*sources(records), args.fit])
+    started = time.perf_counter()
     frf = FRFSettings(
         f_max=args.f_max, **({"min_input_db": None, "min_coherence": None} if args.raw_frf else {})
     )
@@ -123,6 +128,8 @@ def run(args: argparse.Namespace) -> int:
         encoder_counts=args.encoder_counts,
         accel_sigma=args.accel_sigma,
     )
+    seconds = time.perf_counter() - started
+    stage(f"compared {len(records)} record(s) with the model ({seconds:.1f} s)", not args.quiet)
     print(comparison.table(), end="")
     if args.report:
         from jaxflex.plots.compare import save_report

@@ -225,7 +225,9 @@ def discover(
     ``("joint_angle", "root_strain")`` for an encoder and a root strain gauge); residuals,
     noise levels, diagnostics and the report are per channel, and what the records do not
     measure is not fitted. The steps' NRMSE covers the first ``t_end`` seconds of each record
-    (``None``: the whole record). Returns a :class:`DiscoveryReport`.
+    (``None``: the whole record). ``progress`` reports the base model's fit and each step on
+    stderr, as :func:`~jaxflex.identification.identify` does. Returns a
+    :class:`DiscoveryReport`.
     """
     t0 = time.perf_counter()
     records = as_dataset(records)
@@ -267,7 +269,8 @@ def discover(
     if rigid is not None:
         steps.append(_rigid_step(engine, rigid, records, holdout, alpha, channels, t_end))
     added: dict[str, Any] = {}
-    for _ in Progress(range(max_steps + 1), label="discover", enabled=progress):
+    bar = Progress(range(max_steps + 1), label="discover", enabled=progress, each_stage=True)
+    for _ in bar:
         preds = engine.predictions(x, records)
         diag = diagnose(records, preds, noise=engine.noise, alpha=alpha, channels=channels)
         held_preds = engine.predictions(x, holdout) if holdout is not None else None
@@ -301,6 +304,8 @@ def discover(
             confirmations=tuple(confirmations), lr=added.get("lr"),
             p_value=added.get("p"), explained=added.get("explained"), predictions=preds,
         ))
+        found = f"confirmed {best[0].effect}" if best is not None else "none confirmed"
+        bar.set_message(f"{len(ranking)} candidates tested; {found}")
         if best is None:
             break
         conf, slot, x, cost = best
