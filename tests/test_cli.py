@@ -1,6 +1,7 @@
 """The ``jaxflex`` command as a whole: it answers ``--help`` and ``--version`` without loading
 JAX, and long commands show progress by one rule (a bar on a terminal, a line per stage in a
-file, ``JAXFLEX_PROGRESS`` forcing either, ``--quiet`` silencing)."""
+file, ``JAXFLEX_PROGRESS`` forcing either, ``--quiet`` silencing), and every warning is one
+line naming the command, in jaxflex's words."""
 
 from __future__ import annotations
 
@@ -21,6 +22,8 @@ from jaxflex.cli import COMMANDS, build_parser, main
 ROOT = Path(jaxflex.__file__).parents[1]
 EXAMPLE = ROOT / "jaxflex" / "data" / "example_pulse.csv"
 TINY_SEARCH = ["--generations", "2", "--population", "8", "--no-refine"]
+WARNING = "jaxflex identify: warning: "
+"""How the fit's warnings start (its poorly identified parameters, say)."""
 HEAVY = ("jax", "jaxlib", "equinox", "optimistix", "scipy", "matplotlib")
 """What a computing command imports and ``--help`` must not."""
 
@@ -61,7 +64,8 @@ def test_validate_help_states_the_default_window():
     assert f"(default: {DEFAULT_T_END:g} s)" in help_text
 
 
-def test_identify_into_a_file_writes_a_line_per_stage_and_no_bar(monkeypatch, tmp_path):
+def test_identify_into_a_file_writes_a_line_per_stage_and_no_bar(monkeypatch, tmp_path,
+                                                                  warnings_shown):
     """Redirected to a log, the progress is one line per finished stage: no carriage returns
     of a bar's updates."""
     monkeypatch.delenv(ENVIRONMENT_SWITCH, raising=False)
@@ -71,16 +75,17 @@ def test_identify_into_a_file_writes_a_line_per_stage_and_no_bar(monkeypatch, tm
         status = main(["identify", str(EXAMPLE), *TINY_SEARCH, "--out", str(tmp_path / "f.json")])
     text = log.read_text()
     assert status == 0 and "\r" not in text
-    lines = text.splitlines()
+    lines = [line for line in text.splitlines() if not line.startswith(WARNING)]
     assert [line.split(":")[0] for line in lines] == ["DE", "intervals"]
     assert lines[0].startswith("DE: 2/2 in ") and ", best " in lines[0]
 
 
-def test_quiet_silences_the_progress(monkeypatch, tmp_path, capsys):
+def test_quiet_silences_the_progress(monkeypatch, tmp_path, capsys, warnings_shown):
     monkeypatch.setenv(ENVIRONMENT_SWITCH, "1")
     status = main(["identify", str(EXAMPLE), *TINY_SEARCH, "--quiet",
                    "--out", str(tmp_path / "f.json")])
-    assert status == 0 and capsys.readouterr().err == ""
+    err = capsys.readouterr().err
+    assert status == 0 and err and all(line.startswith(WARNING) for line in err.splitlines())
 
 
 @pytest.mark.parametrize("command", ["identify", "study", "discover", "design", "validate"])
@@ -99,3 +104,74 @@ def test_discover_shows_a_bar_when_the_switch_forces_it(monkeypatch, tmp_path, c
     assert main(["discover", str(EXAMPLE), "--initial", str(start), "--max-steps", "0"]) == 0
     err = capsys.readouterr().err
     assert "\rdiscover: 100%|" in err and "| 1/1 [" in err
+
+
+@pytest.fixture
+def warnings_shown(monkeypatch):
+    """Warnings displayed on stderr as Python displays them outside a test runner (through
+    ``warnings.formatwarning``), not recorded by pytest."""
+    import warnings
+
+    def show(message, category, filename, lineno, file=None, line=None):
+        sys.stderr.write(warnings.formatwarning(message, category, filename, lineno, line))
+
+    monkeypatch.setattr(warnings, "showwarning", show)
+
+
+def test_every_warning_is_one_line_naming_the_command(monkeypatch, capsys, warnings_shown):
+    """jaxflex's warnings, NumPy's and optimistix's: one line each, ``jaxflex COMMAND:
+    warning: …``, every run; optimistix's words about root-finds said as what they mean for a
+    fit."""
+    import warnings
+
+    import numpy as np
+    import optimistix as optx
+
+    from jaxflex.cli import datasets
+    from jaxflex.data import RecordWarning
+
+    def warns(args):
+        warnings.warn("record a.csv:\n  time column is not uniform", RecordWarning, stacklevel=1)
+        np.log(np.zeros(1))
+        raw = optx.RESULTS[optx.RESULTS.nonlinear_max_steps_reached]
+        warnings.warn(f"refinement: {raw}", stacklevel=1)
+        return 0
+
+    monkeypatch.setattr(datasets, "run_list", warns)
+    for _ in range(2):
+        assert main(["datasets", "list"]) == 0
+        assert capsys.readouterr().err.splitlines() == [
+            "jaxflex datasets: warning: record a.csv: time column is not uniform",
+            "jaxflex datasets: warning: divide by zero encountered in log",
+            "jaxflex datasets: warning: refinement: Levenberg–Marquardt took all its steps "
+            "without meeting its tolerances: the estimate is the best point it reached, not a "
+            "proven least-squares optimum, and intervals computed there are only indicative; a "
+            "better start (more generations, or --refine-starts above 1) may let it converge",
+        ]
+
+
+def test_a_refinement_out_of_steps_warns_in_the_words_of_a_fit(monkeypatch, tmp_path, capsys,
+                                                                warnings_shown):
+    """The solver that runs out of steps (optimistix: 'a root-find on a function that has no
+    roots') is one warning line saying what it means for the fit; the table stays on stdout."""
+    import functools
+
+    from jaxflex import identification
+    from jaxflex.refine import refine
+
+    monkeypatch.setattr(identification, "refine_parameters", functools.partial(refine,
+                                                                               max_steps=1))
+    status = main(["identify", str(EXAMPLE), *TINY_SEARCH[:4], "--quiet",
+                   "--out", str(tmp_path / "f.json")])
+    out, err = capsys.readouterr()
+    assert status == 0 and "refinement: nonlinear_max_steps_reached, 1 steps" in out
+    assert "warning" not in out and "root-find" not in err + out
+    warnings = [line for line in err.splitlines() if "refinement" in line]
+    assert warnings == [
+        "jaxflex identify: warning: refinement stopped early (nonlinear_max_steps_reached): "
+        "Levenberg–Marquardt took all its steps without meeting its tolerances: the estimate is "
+        "the best point it reached, not a proven least-squares optimum, and intervals computed "
+        "there are only indicative; a better start (more generations, or --refine-starts above "
+        "1) may let it converge"
+    ]
+    assert all(line.startswith(WARNING) for line in err.splitlines())

@@ -136,7 +136,7 @@ def identify_with_arm(args: argparse.Namespace, arm: Arm, arm_file: str) -> int:
     from jaxflex._io import all_or_nothing
     from jaxflex.cli._checks import JSON_SUFFIXES, check_outputs
     from jaxflex.cli._options import model_from
-    from jaxflex.cli.identify import search, sources
+    from jaxflex.cli.identify import report_fit, search, sources
     from jaxflex.distributed import is_main
 
     window = parse_window(args.window)
@@ -149,7 +149,7 @@ def identify_with_arm(args: argparse.Namespace, arm: Arm, arm_file: str) -> int:
     if not is_main():
         return 0
     fit = dataclasses.replace(fit, settings=fit.settings | arm_settings(arm_file, window))
-    print(fit.summary(), end="")
+    report_fit(fit)
     with all_or_nothing():
         fit.to_json(out, overwrite=args.overwrite)
     print(f"wrote {out}")

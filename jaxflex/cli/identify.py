@@ -90,7 +90,7 @@ def run(args: argparse.Namespace) -> int:
     fit = search(args, records, model_from(args.effect), fit_keywords(args, identify))
     if not is_main():
         return 0
-    print(fit.summary(), end="")
+    report_fit(fit)
     with all_or_nothing():
         fit.to_json(out, overwrite=args.overwrite)
         if plot:
@@ -123,6 +123,17 @@ def search(args: argparse.Namespace, records, model, keywords: dict):
     )
     check_finite_cost(fit.cost, "bounds" in keywords)
     return fit
+
+
+def report_fit(fit) -> None:
+    """Print the fit's table; its warnings (poorly identified parameters, a refinement out of
+    steps) go out as the command's one-line warnings, on stderr."""
+    import dataclasses
+    import warnings
+
+    print(dataclasses.replace(fit, warnings=()).summary(), end="")
+    for message in fit.warnings:
+        warnings.warn(message, stacklevel=1)
 
 
 def sources(records) -> list[str]:
