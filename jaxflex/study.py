@@ -158,6 +158,8 @@ def run_study(
 
     ``identify_kwargs`` go to :func:`jaxflex.identification.identify` (bounds, fixed, weights, …);
     intervals are not computed per run (the spread over seeds is the study's subject).
+    ``progress`` reports each run on stderr: a bar on a terminal or in Jupyter, else a line per
+    run.
     """
     methods = [check_method(m) for m in methods]
     seeds = [int(s) for s in seeds]
