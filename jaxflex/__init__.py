@@ -1,14 +1,14 @@
 """jaxflex: identify flexible-link manipulators by differentiable simulation.
 
-JAX is set up for jaxflex as soon as it is imported, by jaxflex or by anyone, once jaxflex has
-been imported (right away if it was imported before): float64 (structural dynamics with stiff
-FEM modes needs it) and one JAX CPU device per usable core so that populations run on all of
-them (see :mod:`jaxflex.parallel`; ``JAXFLEX_HOST_DEVICES=1`` turns it off). Importing jaxflex
-also, unless ``XLA_FLAGS`` already says otherwise, turns off XLA's multi-threaded Eigen on the
-CPU, whose thread pool can wedge on vmapped programs on small machines, and XLA's rewriting of
-large reductions into library kernels (YNNPACK), which sum in another order than XLA's own
-loops and are chosen by array size: with them a candidate's cost would depend on how many
-candidates share its device, so on the number of host devices.
+Once jaxflex is imported, JAX is set up for it the moment JAX itself is imported (by jaxflex
+or by anyone; at once if JAX was imported first): float64 (structural dynamics with stiff FEM
+modes needs it) and one JAX CPU device per usable core so that populations run on all of them
+(see :mod:`jaxflex.parallel`; ``JAXFLEX_HOST_DEVICES=1`` turns it off). Importing jaxflex also,
+before JAX starts and unless ``XLA_FLAGS`` already says otherwise, turns off XLA's
+multi-threaded Eigen on the CPU, whose thread pool can wedge on vmapped programs on small
+machines, and XLA's rewriting of large reductions into library kernels (YNNPACK), which sum in
+another order than XLA's own loops and are chosen by array size: with them a candidate's cost
+would depend on how many candidates share its device, so on the number of host devices.
 
 The names below are imported on first use (``jaxflex.identify`` imports
 :mod:`jaxflex.identification`), so that ``import jaxflex`` alone, and the command line's
