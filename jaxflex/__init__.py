@@ -127,15 +127,17 @@ _MODULE_OF = {name: module for module, names in _SOURCES.items() for name in nam
 
 
 def __getattr__(name: str):
-    """A top-level name, imported from its module on first use (PEP 562)."""
+    """A top-level name, imported from its module on first use (PEP 562); a submodule too
+    (``jaxflex.data.load_dataset`` after ``import jaxflex``, as when every module was loaded)."""
     from importlib import import_module
+    from importlib.util import find_spec
 
     if name in _MODULE_OF:
         value = getattr(import_module(_MODULE_OF[name]), name)
-    elif name == "datasets":
-        value = import_module("jaxflex.datasets")
+    elif not name.startswith("__") and find_spec(f"{__name__}.{name}") is not None:
+        value = import_module(f"{__name__}.{name}")
     else:
-        raise AttributeError(f"module 'jaxflex' has no attribute {name!r}")
+        raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
     globals()[name] = value
     return value
 

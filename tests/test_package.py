@@ -9,6 +9,8 @@ import sys
 import types
 from pathlib import Path
 
+import pytest
+
 import jaxflex
 
 ROOT = Path(jaxflex.__file__).parents[1]
@@ -41,6 +43,9 @@ def test_every_top_level_name_is_imported_on_first_use_from_its_module():
     for name, module in static.items():
         assert getattr(jaxflex, name) is getattr(importlib.import_module(module), name)
     assert jaxflex.datasets is importlib.import_module("jaxflex.datasets")
+    assert jaxflex.__getattr__("preprocess") is importlib.import_module("jaxflex.preprocess")
+    with pytest.raises(AttributeError, match="module 'jaxflex' has no attribute 'simulte'"):
+        jaxflex.simulte  # noqa: B018
 
 
 def test_importing_jaxflex_loads_no_jax_and_sets_jax_up_when_it_is_imported():
