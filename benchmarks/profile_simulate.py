@@ -12,9 +12,9 @@ Writes ``benchmarks/results/profile_simulate.json``.
 from __future__ import annotations
 
 import argparse
+import importlib
 import os
 import re
-import sys
 import time
 from pathlib import Path
 
@@ -30,7 +30,7 @@ from jaxflex.model import Model  # noqa: E402
 from jaxflex.signals import reference_input  # noqa: E402
 from jaxflex.testbed import Testbed  # noqa: E402
 
-simulator = sys.modules["jaxflex.simulation"]
+simulator = importlib.import_module("jaxflex.simulation")
 RESULTS = Path(__file__).parent / "results" / "profile_simulate.json"
 
 

@@ -13,6 +13,7 @@ Writes ``benchmarks/results/substeps.json``.
 from __future__ import annotations
 
 import argparse
+import importlib
 import os
 import sys
 import time
@@ -33,7 +34,7 @@ from jaxflex.metrics import nrmse  # noqa: E402
 from jaxflex.model import Model  # noqa: E402
 from jaxflex.signals import reference_input  # noqa: E402
 
-simulator = sys.modules["jaxflex.simulation"]
+simulator = importlib.import_module("jaxflex.simulation")
 RESULTS = HERE / "results" / "substeps.json"
 SETTINGS = ((1, 0.55), (2, 0.55), (4, 0.55), (1, 0.5), (1, 0.8), (1, 1.0))
 """(sub-steps, friction weight) pairs; the default is (2, 0.55)."""

@@ -1,16 +1,23 @@
 """jaxflex: identify flexible-link manipulators by differentiable simulation.
 
-Importing jaxflex switches JAX to float64 (structural dynamics with stiff FEM modes needs it),
-exposes one JAX CPU device per usable core so that populations run on all of them (see
-:mod:`jaxflex.parallel`; ``JAXFLEX_HOST_DEVICES=1`` turns it off) and, unless ``XLA_FLAGS``
-already says otherwise, turns off XLA's multi-threaded Eigen on the CPU, whose thread pool can
-wedge on vmapped programs on small machines, and XLA's rewriting of large reductions into
-library kernels (YNNPACK), which sum in another order than XLA's own loops and are chosen by
-array size: with them a candidate's cost would depend on how many candidates share its device,
-so on the number of host devices.
+Once jaxflex is imported, JAX is set up for it the moment JAX itself is imported (by jaxflex
+or by anyone; at once if JAX was imported first): float64 (structural dynamics with stiff FEM
+modes needs it) and one JAX CPU device per usable core so that populations run on all of them
+(see :mod:`jaxflex.parallel`; ``JAXFLEX_HOST_DEVICES=1`` turns it off). Importing jaxflex also,
+before JAX starts and unless ``XLA_FLAGS`` already says otherwise, turns off XLA's
+multi-threaded Eigen on the CPU, whose thread pool can wedge on vmapped programs on small
+machines, and XLA's rewriting of large reductions into library kernels (YNNPACK), which sum in
+another order than XLA's own loops and are chosen by array size: with them a candidate's cost
+would depend on how many candidates share its device, so on the number of host devices.
+
+The names below are imported on first use (``jaxflex.identify`` imports
+:mod:`jaxflex.identification`), so that ``import jaxflex`` alone, and the command line's
+``--help``, do not load JAX.
 """
 
 import os
+import sys
+from typing import TYPE_CHECKING
 
 for _flag, _value in (
     ("xla_cpu_multi_thread_eigen", "false"),
@@ -19,52 +26,134 @@ for _flag, _value in (
     if _flag not in os.environ.get("XLA_FLAGS", ""):
         os.environ["XLA_FLAGS"] = f"{os.environ.get('XLA_FLAGS', '')} --{_flag}={_value}".strip()
 
-import jax  # noqa: E402
 
-jax.config.update("jax_enable_x64", True)
+def _configure_jax() -> None:
+    """float64 and the host devices; JAX must be imported, and nothing computed yet."""
+    import jax
 
-from jaxflex.parallel import configure_host_devices  # noqa: E402
+    jax.config.update("jax_enable_x64", True)
 
-configure_host_devices()
+    from jaxflex.parallel import configure_host_devices
 
-from jaxflex import datasets  # noqa: E402
-from jaxflex.arm import ArmError, arm_to_toml, load_arm  # noqa: E402
-from jaxflex.comparison import Comparison, compare, fit_and_validate, noise_floor  # noqa: E402
-from jaxflex.data import Dataset, Record, load_dataset, load_record, save_record  # noqa: E402
-from jaxflex.design import DesignResult, design_input, predicted_intervals  # noqa: E402
-from jaxflex.diagnosis import Diagnosis, diagnose  # noqa: E402
-from jaxflex.discovery import (  # noqa: E402
-    DiscoveryReport,
-    add_effect,
-    discover,
-    load_example,
-    refit,
-    score_tests,
-)
-from jaxflex.drives import (  # noqa: E402
-    DRIVES,
-    CommandDrive,
-    CurrentDrive,
-    Drive,
-    TorqueDrive,
-    VoltageDrive,
-)
-from jaxflex.effects import EFFECTS, Effect, get_effect, library  # noqa: E402
-from jaxflex.frequency_response import frf, mode_shapes, natural_frequencies  # noqa: E402
-from jaxflex.identification import Fit, identify, load_fit  # noqa: E402
-from jaxflex.model import Model  # noqa: E402
-from jaxflex.parameters import (  # noqa: E402
-    BASE_PARAMETERS,
-    ParameterSpace,
-    ParameterSpec,
-    base_space,
-    reference_parameters,
-)
-from jaxflex.rigid import RigidEstimate, estimate_rigid, warm_start  # noqa: E402
-from jaxflex.signals import reference_input  # noqa: E402
-from jaxflex.simulation import Outputs, simulate, simulate_batch  # noqa: E402
-from jaxflex.synthetic import make_records  # noqa: E402
-from jaxflex.testbed import Testbed  # noqa: E402
+    configure_host_devices()
+
+
+class _ConfigureJaxOnImport:
+    """A meta-path finder that runs :func:`_configure_jax` right after ``jax`` is first
+    imported, whoever imports it, then leaves ``sys.meta_path``."""
+
+    def find_spec(self, name, path=None, target=None):
+        if name != "jax" or self not in sys.meta_path:
+            return None
+        sys.meta_path.remove(self)
+        from importlib.util import find_spec
+
+        spec = find_spec(name)
+        if spec is not None and spec.loader is not None:
+            load = spec.loader.exec_module
+
+            def exec_module(module) -> None:
+                load(module)
+                _configure_jax()
+
+            spec.loader.exec_module = exec_module
+        return spec
+
+
+if "jax" in sys.modules:
+    _configure_jax()
+else:
+    sys.meta_path.insert(0, _ConfigureJaxOnImport())
+
+if TYPE_CHECKING:  # what static tools see; at run time __getattr__ imports each on first use
+    from jaxflex import datasets
+    from jaxflex.arm import ArmError, arm_to_toml, load_arm
+    from jaxflex.comparison import Comparison, compare, fit_and_validate, noise_floor
+    from jaxflex.data import Dataset, Record, load_dataset, load_record, save_record
+    from jaxflex.design import DesignResult, design_input, predicted_intervals
+    from jaxflex.diagnosis import Diagnosis, diagnose
+    from jaxflex.discovery import (
+        DiscoveryReport,
+        add_effect,
+        discover,
+        load_example,
+        refit,
+        score_tests,
+    )
+    from jaxflex.drives import (
+        DRIVES,
+        CommandDrive,
+        CurrentDrive,
+        Drive,
+        TorqueDrive,
+        VoltageDrive,
+    )
+    from jaxflex.effects import EFFECTS, Effect, get_effect, library, register_effect
+    from jaxflex.frequency_response import frf, mode_shapes, natural_frequencies
+    from jaxflex.identification import Fit, identify, load_fit
+    from jaxflex.model import Model
+    from jaxflex.parameters import (
+        BASE_PARAMETERS,
+        ParameterSpace,
+        ParameterSpec,
+        base_space,
+        reference_parameters,
+    )
+    from jaxflex.rigid import RigidEstimate, estimate_rigid, warm_start
+    from jaxflex.signals import reference_input
+    from jaxflex.simulation import Outputs, simulate, simulate_batch
+    from jaxflex.synthetic import make_records
+    from jaxflex.testbed import Testbed
+
+_SOURCES: dict[str, tuple[str, ...]] = {
+    "jaxflex.arm": ("ArmError", "arm_to_toml", "load_arm"),
+    "jaxflex.comparison": ("Comparison", "compare", "fit_and_validate", "noise_floor"),
+    "jaxflex.data": ("Dataset", "Record", "load_dataset", "load_record", "save_record"),
+    "jaxflex.design": ("DesignResult", "design_input", "predicted_intervals"),
+    "jaxflex.diagnosis": ("Diagnosis", "diagnose"),
+    "jaxflex.discovery": (
+        "DiscoveryReport", "add_effect", "discover", "load_example", "refit", "score_tests",
+    ),
+    "jaxflex.drives": (
+        "DRIVES", "CommandDrive", "CurrentDrive", "Drive", "TorqueDrive", "VoltageDrive",
+    ),
+    "jaxflex.effects": ("EFFECTS", "Effect", "get_effect", "library", "register_effect"),
+    "jaxflex.frequency_response": ("frf", "mode_shapes", "natural_frequencies"),
+    "jaxflex.identification": ("Fit", "identify", "load_fit"),
+    "jaxflex.model": ("Model",),
+    "jaxflex.parameters": (
+        "BASE_PARAMETERS", "ParameterSpace", "ParameterSpec", "base_space",
+        "reference_parameters",
+    ),
+    "jaxflex.rigid": ("RigidEstimate", "estimate_rigid", "warm_start"),
+    "jaxflex.signals": ("reference_input",),
+    "jaxflex.simulation": ("Outputs", "simulate", "simulate_batch"),
+    "jaxflex.synthetic": ("make_records",),
+    "jaxflex.testbed": ("Testbed",),
+}
+"""Where each top-level name is defined (the imports above, for the interpreter)."""
+_MODULE_OF = {name: module for module, names in _SOURCES.items() for name in names}
+
+
+def __getattr__(name: str):
+    """A top-level name, imported from its module on first use (PEP 562); a submodule too
+    (``jaxflex.data.load_dataset`` after ``import jaxflex``, as when every module was loaded)."""
+    from importlib import import_module
+    from importlib.util import find_spec
+
+    if name in _MODULE_OF:
+        value = getattr(import_module(_MODULE_OF[name]), name)
+    elif not name.startswith("__") and find_spec(f"{__name__}.{name}") is not None:
+        value = import_module(f"{__name__}.{name}")
+    else:
+        raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+    globals()[name] = value
+    return value
+
+
+def __dir__() -> list[str]:
+    return sorted(set(globals()) | set(__all__))
+
 
 __version__ = "0.1.0"
 
@@ -119,6 +208,7 @@ __all__ = [
     "reference_input",
     "reference_parameters",
     "refit",
+    "register_effect",
     "save_record",
     "score_tests",
     "simulate",

@@ -411,7 +411,8 @@ def design_input(
     flat-spectrum multisine with random phases (start ``r`` draws them from
     ``numpy.random.default_rng((seed, r))``) followed by ``iterations`` ascent steps; the
     criterion has many local optima, so ``restarts`` starts are tried and the best is kept
-    (``settings["start_values"]`` lists where each ended).
+    (``settings["start_values"]`` lists where each ended). ``progress`` reports the ascent of
+    each start on stderr: a bar on a terminal or in Jupyter, else a line when it ends.
     """
     model = Model() if model is None else model
     values = _nominal(model, params)

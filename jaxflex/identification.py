@@ -30,6 +30,7 @@ import numpy as np
 from jaxtyping import ArrayLike
 
 from jaxflex._io import provenance, to_jsonable, write_json
+from jaxflex._progress import stage
 from jaxflex.arm import MAX_ELEMENTS
 from jaxflex.diagnosis import Noise, noise_levels
 from jaxflex.evolve import STRATEGIES, get_strategy, run
@@ -557,7 +558,8 @@ def identify(
     ``init_population`` seeds the search with physical points (a mapping name → value or
     values, a list of mappings, or a previous :class:`Fit`). ``refine`` polishes the result with
     Levenberg–Marquardt from the ``refine_starts`` best candidates; ``intervals`` computes the
-    Gauss–Newton uncertainty at ``level``.
+    Gauss–Newton uncertainty at ``level``. ``progress`` reports the stages (search, refinement,
+    intervals) on stderr: a bar on a terminal or in Jupyter, else a line per stage.
     """
     t_start = time.perf_counter()
     check_records(records, "identify")
@@ -598,6 +600,8 @@ def identify(
         refinement = refine_parameters(objective, starts)
         timing["refine"] = refinement.wall_time
         timing["refine_compile"] = refinement.compile_time
+        stage(f"refinement: {refinement.result} after {refinement.steps} steps, cost "
+              f"{refinement.cost:.3e} ({refinement.wall_time:.1f} s)", progress)
         if refinement.accepted and refinement.cost < cost:
             estimate, cost = refinement.params, refinement.cost
             linearization = refinement.linearization  # the intervals reuse its Jacobian
@@ -617,6 +621,7 @@ def identify(
         t0 = time.perf_counter()
         unc = uncertainty(objective, estimate, level=level, linearization=linearization)
         timing["uncertainty"] = time.perf_counter() - t0
+        stage(f"intervals: {level:.0%} ({timing['uncertainty']:.1f} s)", progress)
         warnings += unc.warnings
     timing["total"] = time.perf_counter() - t_start
 

@@ -123,6 +123,48 @@ def _result_name(result: optx.RESULTS) -> str:
     return "failed"
 
 
+_RESULT_MEANINGS = {
+    "successful": "converged",
+    "nonlinear_max_steps_reached": (
+        "Levenberg–Marquardt took all its steps without meeting its tolerances: the estimate "
+        "is the best point it reached, not a proven least-squares optimum, and intervals "
+        "computed there are only indicative; a better start (more generations, or "
+        "refine_starts= above 1) may let it converge"
+    ),
+    "nonlinear_divergence": (
+        "Levenberg–Marquardt diverged; the best point it reached is kept only where it lowers "
+        "the cost"
+    ),
+    "nonfinite": (
+        "the simulation gave inf or nan at parameters Levenberg–Marquardt tried (the model "
+        "blows up there); the best finite point is kept only where it lowers the cost, and "
+        "narrower bounds keep the fit away from them"
+    ),
+}
+"""What each end of a solve means for a fit, said instead of optimistix's messages, which
+speak of solvers in general (a 'root-find on a function that has no roots', 'increase
+`max_steps`')."""
+
+
+def _result_message(result: optx.RESULTS) -> str:
+    """The end of a solve in the words of a fit (:data:`_RESULT_MEANINGS`)."""
+    name = _result_name(result)
+    if name in _RESULT_MEANINGS:
+        return _RESULT_MEANINGS[name]
+    return f"a Levenberg–Marquardt step failed: {optx.RESULTS[result]}"
+
+
+def in_fit_words(message: str) -> str:
+    """``message`` with any of optimistix's result messages in it replaced by what it means
+    for a fit (e.g. a warning or error of the solver that reached the user)."""
+    text = " ".join(message.split())
+    for name, meaning in _RESULT_MEANINGS.items():
+        words = " ".join(optx.RESULTS[getattr(optx.RESULTS, name)].split())
+        if words and words in text:
+            text = text.replace(words, meaning)
+    return text
+
+
 def _floats(params: Mapping[str, ArrayLike], names: Sequence[str]) -> dict[str, float]:
     return {n: float(params[n]) for n in names}
 
@@ -406,7 +448,7 @@ def bounded_least_squares(
         cost_start=cost_start,
         cost=cost if better else cost_start,
         result=_result_name(result),
-        message=optx.RESULTS[result] or "converged",
+        message=_result_message(result),
         steps=int(steps),
         linearization=tuple(map(np.asarray, linearization)) if better else None,
     )

@@ -164,6 +164,8 @@ def run_study(
 
     ``identify_kwargs`` go to :func:`jaxflex.identification.identify` (bounds, fixed, weights, …);
     intervals are not computed per run (the spread over seeds is the study's subject).
+    ``progress`` reports each run on stderr: a bar on a terminal or in Jupyter, else a line per
+    run.
     """
     methods = [check_method(m) for m in methods]
     seeds = [int(s) for s in seeds]
@@ -176,7 +178,7 @@ def run_study(
     identify_kwargs.setdefault("intervals", False)
     runs = []
     jobs = [(m, s) for m in methods for s in seeds]
-    bar = Progress(jobs, label="study", enabled=progress)
+    bar = Progress(jobs, label="study", enabled=progress, each_stage=True)
     names: tuple[str, ...] = ()
     for method, seed in bar:
         fit = identify(

@@ -2,9 +2,9 @@
 
 from __future__ import annotations
 
+import importlib
 import json
 import math
-import sys
 
 import numpy as np
 import pytest
@@ -239,7 +239,8 @@ def test_fit_and_validate_fits_only_the_named_records(monkeypatch, records):
         calls.append((fit_records.names, kwargs))
         return _StubFit(fit_records.names)
 
-    monkeypatch.setattr(sys.modules["jaxflex.identification"], "identify", fake_identify)
+    identification = importlib.import_module("jaxflex.identification")
+    monkeypatch.setattr(identification, "identify", fake_identify)
     fit, c = fit_and_validate(records, "triangular", ["pulse"], generations=3, seed=5, **NOISE)
     assert calls == [(("triangular",), {"generations": 3, "seed": 5})]
     assert c.names == ("triangular", "pulse") and [r.role for r in c.rows] == ["fit", "held-out"]

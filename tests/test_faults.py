@@ -8,6 +8,7 @@ dropping the capabilities that bypass file permissions.
 
 from __future__ import annotations
 
+import importlib
 import json
 import os
 import shutil
@@ -310,7 +311,7 @@ def test_7_a_failed_fit_is_not_written(monkeypatch, tmp_path, capsys):
     import functools
     import types
 
-    module = sys.modules["jaxflex.identification"]
+    module = importlib.import_module("jaxflex.identification")
 
     @functools.wraps(module.identify)
     def diverged(*args, **kwargs):
@@ -535,7 +536,7 @@ def test_14_design_options_are_checked(tmp_path, capsys):
 def test_design_rms_torque_defaults_to_half_the_peak(monkeypatch, tmp_path, capsys):
     import functools
 
-    module = sys.modules["jaxflex.design"]
+    module = importlib.import_module("jaxflex.design")
     seen = {}
 
     @functools.wraps(module.design_input)
@@ -629,7 +630,7 @@ def test_fitting_options_are_one_definition(tmp_path, capsys, command, option, v
 def test_discover_passes_effects_and_noise_levels_on(monkeypatch, tmp_path, capsys):
     import functools
 
-    module = sys.modules["jaxflex.discovery"]
+    module = importlib.import_module("jaxflex.discovery")
     seen = {}
 
     @functools.wraps(module.discover)

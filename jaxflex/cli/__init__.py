@@ -4,7 +4,8 @@ Each module in :data:`COMMANDS` defines ``register(subparsers)``, which adds its
 sets ``func`` to the function that runs it. Every command checks its inputs and all of its
 outputs before it computes anything (:mod:`jaxflex.cli._checks`); :func:`main` turns every
 error a user can meet — bad files or values, permissions, full disks, sizes — into one line
-``jaxflex <command>: error: …`` with exit status 2, never a traceback (``--debug`` shows one).
+``jaxflex <command>: error: …`` with exit status 2, never a traceback (``--debug`` shows one),
+and every warning into one line ``jaxflex <command>: warning: …``.
 Ctrl-C and SIGTERM stop with one line and exit status 130 and 143, leaving no partial or
 temporary file.
 """
@@ -74,11 +75,16 @@ def load_records(paths: Sequence[str], *, resample: bool, unit_check: bool = Tru
 
 
 def build_parser() -> argparse.ArgumentParser:
+    """The parser of every command; building it imports no JAX (each command imports what it
+    computes with when it runs), so ``--help`` and ``--version`` answer at once."""
+    from jaxflex import __version__
+
     parser = argparse.ArgumentParser(
         prog="jaxflex",
         description="Identify flexible-link manipulators by differentiable simulation.",
         epilog="--debug (anywhere on the line) shows the traceback of an error.",
     )
+    parser.add_argument("--version", action="version", version=f"%(prog)s {__version__}")
     subparsers = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
     for name in COMMANDS:
         try:
@@ -113,7 +119,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     format_warning = warnings.formatwarning
     try:
         warnings.formatwarning = one_line_warning(prefix)
-        return int(args.func(args) or 0)
+        with warnings.catch_warnings():  # registries anew: a second run warns as the first
+            return int(args.func(args) or 0)
     except KeyboardInterrupt:
         print(f"{prefix}: interrupted; no partial output was left", file=sys.stderr)
         return EXIT_INTERRUPTED

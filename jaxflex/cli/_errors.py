@@ -1,13 +1,17 @@
-"""The one place that turns an exception into the one line a command-line user reads.
+"""The one place that turns an exception or a warning into the one line a command-line user
+reads.
 
 Library messages speak Python (``overwrite=True``, ``t_end=``); :func:`describe` rewrites them
-in the command line's words and adds the remedy for operating-system and size errors.
+in the command line's words and adds the remedy for operating-system and size errors;
+:func:`one_line_warning` writes every warning as ``jaxflex COMMAND: warning: …``, those of the
+libraries jaxflex computes with said in what they mean for the run (:func:`in_our_words`).
 """
 
 from __future__ import annotations
 
 import errno
 import re
+import sys
 
 _API_TO_CLI: tuple[tuple[str, str], ...] = (
     (r"pass overwrite=True \(CLI: --overwrite\)", "pass --overwrite"),
@@ -24,6 +28,7 @@ _API_TO_CLI: tuple[tuple[str, str], ...] = (
     (r"\bmax_frequency=", "--max-frequency "),
     (r"\bharmonics=", "--harmonics "),
     (r"\biterations=", "--iterations "),
+    (r"\brefine_starts=", "--refine-starts "),
     (r"^weights given for", "--weight given for"),
     (r"^fixed value (\w+=)", r"--fix \1"),
     (r"^amplitude must", "--amplitude must"),
@@ -86,9 +91,20 @@ def one_line_warning(prefix: str):
     source line (the user did not write the library)."""
 
     def format_warning(message, category, filename, lineno, line=None) -> str:
-        return f"{prefix}: warning: {cli_words(str(message))}\n"
+        return f"{prefix}: warning: {cli_words(in_our_words(str(message)))}\n"
 
     return format_warning
 
 
-__all__ = ["cli_words", "describe", "one_line_warning"]
+def in_our_words(message: str) -> str:
+    """``message`` with the words of a library jaxflex computes with replaced by what they mean
+    for the run: optimistix's result messages (:func:`jaxflex.refine.in_fit_words`; only a run
+    that loaded optimistix can meet them)."""
+    if "optimistix" in sys.modules:
+        from jaxflex.refine import in_fit_words
+
+        message = in_fit_words(message)
+    return message
+
+
+__all__ = ["cli_words", "describe", "in_our_words", "one_line_warning"]

@@ -141,6 +141,14 @@ def fit_keywords(args: argparse.Namespace, function: Callable) -> dict[str, Any]
 
 
 
+def add_quiet_option(p: argparse.ArgumentParser) -> None:
+    """``--quiet``: no progress output. Without it a long command shows its progress on stderr
+    by the rule of :mod:`jaxflex._progress`: a bar on a terminal, a line per stage otherwise."""
+    p.add_argument("--quiet", action="store_true",
+                   help="no progress output (default: a bar on a terminal, else a line per "
+                        "stage, on stderr)")
+
+
 def add_record_options(p: argparse.ArgumentParser) -> None:
     """How records are read: ``--resample`` and ``--no-unit-check``."""
     p.add_argument("--resample", action="store_true",
@@ -151,6 +159,6 @@ def add_record_options(p: argparse.ArgumentParser) -> None:
 
 
 __all__ = [
-    "PAIR_OPTIONS", "PairOption", "add_fit_options", "add_record_options", "finite_number",
-    "effects_from", "fit_keywords", "pair_values",
+    "PAIR_OPTIONS", "PairOption", "add_fit_options", "add_quiet_option", "add_record_options",
+    "effects_from", "finite_number", "fit_keywords", "pair_values",
 ]

@@ -26,6 +26,7 @@ from jaxflex.cli._checks import (
     positive_int,
     seed,
 )
+from jaxflex.cli._options import add_quiet_option
 
 DEFAULT_RMS_FRACTION = 0.5
 """Default ``--rms-torque`` as a fraction of ``--max-torque``."""
@@ -110,6 +111,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         help="bar chart of the predicted intervals against the paper's inputs",
     )
     p.add_argument("--overwrite", action="store_true", help="replace existing output files")
+    add_quiet_option(p)
     add_max_samples(p)
     add_arm_arguments(p, window=False)
     p.set_defaults(func=run)
@@ -152,7 +154,7 @@ def run(args: argparse.Namespace) -> int:
         iterations=args.iterations,
         seed=args.seed,
         restarts=args.restarts,
-        progress=True,
+        progress=not args.quiet,
     )
     unidentifiable = [n for n, v in result.intervals.items() if not math.isfinite(v)]
     if unidentifiable:

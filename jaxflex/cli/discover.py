@@ -30,7 +30,12 @@ from jaxflex.cli._checks import (
     read_fit,
     seed,
 )
-from jaxflex.cli._options import add_fit_options, add_record_options, fit_keywords
+from jaxflex.cli._options import (
+    add_fit_options,
+    add_quiet_option,
+    add_record_options,
+    fit_keywords,
+)
 from jaxflex.cli.identify import sources
 
 HELP = "find the physical effects the model is missing: score tests, add, refit, report"
@@ -63,7 +68,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                    help="figure file format (default: png)")
     p.add_argument("--overwrite", action="store_true", help="replace existing output files")
     add_record_options(p)
-    p.add_argument("--progress", action="store_true", help="show progress on the terminal")
+    add_quiet_option(p)
+    p.add_argument("--progress", action="store_true", help=argparse.SUPPRESS)  # the default now
     add_arm_arguments(p)
     p.set_defaults(func=run)
 
@@ -115,7 +121,7 @@ def run(args: argparse.Namespace) -> int:
         keywords["t_end"] = None
     report = discover(
         records, holdout=holdout, model=model, candidates=candidates,
-        max_steps=args.max_steps, alpha=args.alpha, seed=args.seed, progress=args.progress,
+        max_steps=args.max_steps, alpha=args.alpha, seed=args.seed, progress=not args.quiet,
         initial=initial, budget=args.generations, **keywords,
     )
     print(report.table(), end="")

@@ -29,7 +29,12 @@ from jaxflex.cli._checks import (
     positive_int,
     seed,
 )
-from jaxflex.cli._options import add_fit_options, add_record_options, fit_keywords
+from jaxflex.cli._options import (
+    add_fit_options,
+    add_quiet_option,
+    add_record_options,
+    fit_keywords,
+)
 from jaxflex.cli._processes import add_process_arguments, enter
 
 HELP = "identify the parameters from measured records (DE, GA or PSO + refinement)"
@@ -53,7 +58,7 @@ def add_search_arguments(p: argparse.ArgumentParser) -> None:
     add_fit_options(p)
     add_record_options(p)
     p.add_argument("--overwrite", action="store_true", help="replace existing output files")
-    p.add_argument("--quiet", action="store_true", help="no progress bar")
+    add_quiet_option(p)
     add_process_arguments(p)
 
 
@@ -99,7 +104,7 @@ def run(args: argparse.Namespace) -> int:
         return 0
     rig = rig_settings(model, source, records, windows)
     fit = dataclasses.replace(fit, settings=fit.settings | rig)
-    print(fit.summary(), end="")
+    report_fit(fit)
     with all_or_nothing():
         fit.to_json(out, overwrite=args.overwrite)
         if plot:
@@ -150,6 +155,17 @@ def search(args: argparse.Namespace, records, model, keywords: dict):
     )
     check_finite_cost(fit.cost, "bounds" in keywords)
     return fit
+
+
+def report_fit(fit) -> None:
+    """Print the fit's table; its warnings (poorly identified parameters, a refinement out of
+    steps) go out as the command's one-line warnings, on stderr."""
+    import dataclasses
+    import warnings
+
+    print(dataclasses.replace(fit, warnings=()).summary(), end="")
+    for message in fit.warnings:
+        warnings.warn(message, stacklevel=1)
 
 
 def sources(records) -> list[str]:

@@ -32,9 +32,8 @@ from jaxflex.cli._checks import (
     positive_int,
     read_fit,
 )
-from jaxflex.cli._options import add_record_options
+from jaxflex.cli._options import add_quiet_option, add_record_options
 from jaxflex.cli.identify import sources
-from jaxflex.comparison import DEFAULT_T_END, FRFSettings, compare
 
 HELP = "compare a fitted model with measured records: metrics table and figures"
 """One-line summary of ``jaxflex validate`` in the command list."""
@@ -64,8 +63,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         "--t-end",
         type=positive_float,
         metavar="S",
-        help=f"time-domain metrics over 0 <= t <= S seconds (default: {DEFAULT_T_END:g} for "
-        "records of the simulator's outputs, the whole record or window for a rig's sensors)",
+        help="time-domain metrics over 0 <= t <= S seconds (default: 2 s for records of the "
+        "simulator's outputs, the whole record or window for a rig's sensors)",
     )
     p.add_argument(
         "--f-max",
@@ -93,13 +92,18 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         help="accelerometer noise standard deviation (m/s^2), for the noise floor",
     )
     add_arm_arguments(p)
+    add_quiet_option(p)
     p.add_argument("--json", metavar="TABLE.json",
                    help="write the NRMSE of each channel of each record as JSON")
     p.set_defaults(func=run)
 
 
 def run(args: argparse.Namespace) -> int:
+    import time
+
     from jaxflex._io import all_or_nothing, write_json
+    from jaxflex._progress import stage
+    from jaxflex.comparison import DEFAULT_T_END, FRFSettings, compare
 
     _, params, fit = read_fit("--fit", args.fit)
     model, _ = rig_of(args, fit)
@@ -135,6 +139,7 @@ def run(args: argparse.Namespace) -> int:
     frf = FRFSettings(
         f_max=args.f_max, **({"min_input_db": None, "min_coherence": None} if args.raw_frf else {})
     )
+    started = time.perf_counter()
     comparison = compare(
         model,
         params,
@@ -145,6 +150,8 @@ def run(args: argparse.Namespace) -> int:
         encoder_counts=args.encoder_counts,
         accel_sigma=args.accel_sigma,
     )
+    seconds = time.perf_counter() - started
+    stage(f"compared {len(records)} record(s) with the model ({seconds:.1f} s)", not args.quiet)
     print(comparison.table(), end="")
     with all_or_nothing():
         if json_target is not None:

@@ -229,7 +229,9 @@ def discover(
     and the fits use (default: the rig's sensor channels that they all hold, or joint angle and
     tip acceleration for a rig without sensors); residuals, noise levels, diagnostics and the
     report are per channel. The steps' NRMSE covers the first ``t_end`` seconds of each record
-    (``None``: the whole record). Returns a :class:`DiscoveryReport`.
+    (``None``: the whole record). ``progress`` reports the base model's fit and each step on
+    stderr, as :func:`~jaxflex.identification.identify` does. Returns a
+    :class:`DiscoveryReport`.
     """
     t0 = time.perf_counter()
     check_records(records, "discover")
@@ -278,7 +280,8 @@ def discover(
     if rigid is not None:
         steps.append(_rigid_step(engine, rigid, records, holdout, alpha, channels, t_end))
     added: dict[str, Any] = {}
-    for _ in Progress(range(max_steps + 1), label="discover", enabled=progress):
+    bar = Progress(range(max_steps + 1), label="discover", enabled=progress, each_stage=True)
+    for _ in bar:
         preds = engine.predictions(x, records)
         diag = diagnose(records, preds, noise=engine.noise, alpha=alpha, channels=channels)
         held_preds = engine.predictions(x, holdout) if holdout is not None else None
@@ -313,6 +316,8 @@ def discover(
             p_value=added.get("p"), explained=added.get("explained"), predictions=preds,
             holdout_predictions=tuple(held_preds or ()),
         ))
+        found = f"confirmed {best[0].effect}" if best is not None else "none confirmed"
+        bar.set_message(f"{len(ranking)} candidates tested; {found}")
         if best is None:
             break
         conf, slot, x, cost = best

@@ -392,10 +392,11 @@ def run(
     of shape ``(dim,)``) seeds the first ``k`` members, the rest is uniform random.
     ``fitness_fn`` is called once per generation on the full population, so the run costs
     ``P (generations + 1)`` evaluations. ``callback(g, state)`` is called after every generation
-    ``g = 1..generations``; ``progress`` shows a progress bar on a terminal. With ``tol``, the
-    run stops early once the population has converged: its costs all finite and their standard
-    deviation at most ``tol`` times the magnitude of their mean (the test of SciPy's
-    ``differential_evolution``); each generation then waits for its costs before the next.
+    ``g = 1..generations``; ``progress`` reports the generations on stderr (a bar on a terminal
+    or in Jupyter, else a line when the search ends). With ``tol``, the run stops early once the
+    population has converged: its costs all finite and their standard deviation at most ``tol``
+    times the magnitude of their mean (the test of SciPy's ``differential_evolution``); each
+    generation then waits for its costs before the next.
     """
     owner = "run"
     check_integer(owner, "dim", dim, 1)
