@@ -301,6 +301,12 @@ def arm_to_toml(model: Model) -> str:
     return "\n".join(lines) + "\n"
 
 
+_TOML_ESCAPES = {chr(i): f"\\u{i:04x}" for i in (*range(0x20), 0x7F)} | {
+    "\b": "\\b", "\t": "\\t", "\n": "\\n", "\f": "\\f", "\r": "\\r", '"': '\\"',
+    "\\": "\\\\"}
+"""A TOML basic string's escapes: the quote, the backslash and every control character."""
+
+
 def _toml_value(value: Any) -> str:
     """One TOML value: strings, booleans, numbers (floats exactly, by ``repr``), inline tables."""
     if isinstance(value, bool):
@@ -312,7 +318,7 @@ def _toml_value(value: Any) -> str:
             raise ArmError(f"a rig value {value!r} is not finite: it has no arm-file form")
         return repr(value)
     if isinstance(value, str):
-        return '"' + value.replace("\\", "\\\\").replace('"', '\\"') + '"'
+        return '"' + "".join(_TOML_ESCAPES.get(c, c) for c in value) + '"'
     if isinstance(value, Mapping):
         return "{ " + ", ".join(f"{k} = {_toml_value(v)}" for k, v in value.items()) + " }"
     raise ArmError(f"a rig value {value!r} ({type(value).__name__}) has no arm-file form")
@@ -444,8 +450,9 @@ def _sensors(
             values["gain"] = bounds[0]
             gain.done()
         offset_bounds = None
+        rezero = table.boolean("rezero", True)  # checked first: the offset's form depends on it
         if isinstance(table.data.get("offset"), Mapping):
-            if table.data.get("rezero", True) is not False:
+            if rezero:
                 raise ArmError(
                     f"{table.where}: {table.key('offset')}: an offset cannot be identified from "
                     "records re-zeroed at rest, which removes it; give a number, or set "
