@@ -81,8 +81,9 @@ def parse_windows(
         if earlier is not None:
             who = "every record" if window.name is None else f"record {window.name!r}"
             raise UsageError(
-                f"--window {text}: {who} already has a window (--window {earlier.text}); give "
-                "one window for every record and NAME=T0:T1 for each record that differs"
+                f"--window {_echo(text)}: {who} already has a window (--window "
+                f"{_echo(earlier.text)}); give one window for every record and NAME=T0:T1 for "
+                "each record that differs"
             )
         if window.name is None:
             every = window
@@ -108,7 +109,8 @@ def check_window(
     if not (starts_before or ends_after or lo >= t_end or hi <= t_start):
         return max(lo, t_start), min(hi, t_end)
     who = "the record" if window.name is not None else f"record {name!r}"
-    spans = f"--window {window.text}: {who} spans {_seconds(t_start)} to {_seconds(t_end)} s"
+    spans = (f"--window {_echo(window.text)}: {who} spans {_seconds(t_start)} to "
+             f"{_seconds(t_end)} s")
     if _in_ms(window, t_start, t_end, slack):
         raise UsageError(f"{spans}; is the window in ms? times are in seconds")
     if lo >= t_end or hi <= t_start:
@@ -141,8 +143,8 @@ def resolve_window(
             record.channel(record.input_name), span, name=record.name,
         )
     except ValueError as err:
-        message = str(err).replace("window=(t0, t1)", f"--window {record.name}=T0:T1")
-        raise UsageError(f"--window {window.text}: {message}") from None
+        message = str(err).replace("window=(t0, t1)", f"--window {_echo(record.name)}=T0:T1")
+        raise UsageError(f"--window {_echo(window.text)}: {message}") from None
     return t0, t_end
 
 
@@ -151,16 +153,16 @@ def _parse(text: str, names: Sequence[str]) -> Window:
     name, equals, times = text.rpartition("=")
     record = name if equals else None
     if record is not None and record not in names:
-        raise UsageError(f"--window {text}: {_unknown(record, names)}")
+        raise UsageError(f"--window {_echo(text)}: {_unknown(record, names)}")
     if times == AUTO:
         return Window(text, record, auto=True)
     if times.count(":") != 1:
-        raise UsageError(f"--window {text}: expected {FORMS} (times in seconds)")
+        raise UsageError(f"--window {_echo(text)}: expected {FORMS} (times in seconds)")
     lo_text, _, hi_text = times.partition(":")
     lo, hi = _time(text, "T0", lo_text), _time(text, "T1", hi_text)
     if lo is not None and hi is not None and not lo < hi:
         raise UsageError(
-            f"--window {text}: T0 = {_seconds(lo)} s must be below T1 = {_seconds(hi)} s"
+            f"--window {_echo(text)}: T0 = {_seconds(lo)} s must be below T1 = {_seconds(hi)} s"
         )
     return Window(text, record, lo, hi)
 
@@ -175,7 +177,7 @@ def _time(text: str, label: str, part: str) -> float | None:
         value = math.nan
     if not (math.isfinite(value) and value >= 0):
         raise UsageError(
-            f"--window {text}: {label} = {part!r} must be a finite number of seconds >= 0"
+            f"--window {_echo(text)}: {label} = {part!r} must be a finite number of seconds >= 0"
         )
     return value
 
@@ -203,6 +205,12 @@ def _in_ms(window: Window, t_start: float, t_end: float, slack: float) -> bool:
     hi = t_end if window.end is None else window.end / 1e3
     reach = max(abs(t_end), t_end - t_start)
     return max(given) > _MS_FACTOR * reach and t_start - slack <= lo < hi <= t_end + slack
+
+
+def _echo(text: str) -> str:
+    """``text`` as an error shows it, on one line: each character that is not printable (a
+    newline, a tab, a control character) escaped as Python writes it."""
+    return "".join(c if c.isprintable() else repr(c)[1:-1] for c in text)
 
 
 def _seconds(t: float) -> str:
