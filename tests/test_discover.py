@@ -39,6 +39,7 @@ from jaxflex.effects import Effect, Stribeck, get_effect
 from jaxflex.metrics import nrmse
 from jaxflex.model import Model
 from jaxflex.parameters import ParameterSpec
+from jaxflex.sensors import Encoder, StrainGauge
 from jaxflex.simulation import simulate
 from jaxflex.synthetic import ACCELEROMETER_SIGMA, ENCODER_STEP, make_records
 
@@ -144,11 +145,18 @@ def test_candidates_by_name_profile_stribeck_and_validate():
     cands = candidate_set()
     physical = {"payload", "delay", "motor_lag", "gravity", "root_compliance", "stribeck",
                 "torque_offset"}
+    # no sensor offset unless named (records are re-zeroed at rest), no gain on the encoder
     assert {c.name for c in cands} == physical | {
-        f"sensor_gain:{c}" for c in ("joint_angle", "tip_acceleration", "root_strain")
-    }  # no sensor offset unless named: records are re-zeroed at rest
+        f"sensor_gain:{c}" for c in ("tip_acceleration", "root_strain")
+    }
     fitted = {c.name for c in candidate_set(None, ["joint_angle", "root_strain"])}
-    assert fitted == physical | {"sensor_gain:joint_angle", "sensor_gain:root_strain"}
+    assert fitted == physical | {"sensor_gain:root_strain"}
+    # a rig's encoder is known by its sensor, whatever its channel; other sensors keep a gain
+    rig = Model(sensors=(Encoder(channel="angle"), StrainGauge(channel="joint_angle")))
+    fitted = {c.name for c in candidate_set(None, ["angle", "joint_angle"], rig)}
+    assert fitted == physical | {"sensor_gain:joint_angle"}
+    named = candidate_set(["sensor_gain:joint_angle"], ["joint_angle"])  # named: tested
+    assert [c.name for c in named] == ["sensor_gain:joint_angle"]
     stribeck = next(c for c in cands if c.name == "stribeck")
     assert len(stribeck.effects) == len(Stribeck.grid()) and stribeck.label(0).startswith("v_s=")
     assert len(candidate_set([Stribeck(v_s=0.2)])[0].effects) == 1

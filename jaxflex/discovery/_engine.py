@@ -147,7 +147,7 @@ class Engine:
         """The universe of ``model``, the default candidates for ``channels`` and
         ``candidates`` (bounds and fixed values validated and applied)."""
         names = [c.name for c in candidates]
-        pool = [c for c in candidate_set(None, channels) if c.name not in names]
+        pool = [c for c in candidate_set(None, channels, model) if c.name not in names]
         pool += list(candidates)
         pool = sorted((c for c in pool if c.name not in model.effect_names),
                       key=lambda c: c.name)

@@ -6,6 +6,7 @@ from __future__ import annotations
 import dataclasses
 from collections.abc import Iterable, Mapping
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import equinox as eqx
 from jaxtyping import Array, Float
@@ -21,6 +22,10 @@ from jaxflex.effects import (
 )
 from jaxflex.effects._base import Structure
 from jaxflex.parameters import ParameterSpec, Params
+from jaxflex.sensors import Encoder
+
+if TYPE_CHECKING:
+    from jaxflex.model import Model
 
 
 class Variant(Effect):
@@ -118,18 +123,36 @@ def as_candidate(item: str | Effect | Candidate) -> Candidate:
     return cand
 
 
-def default_candidates(channels: Iterable[str] | None = None) -> list[str]:
-    """The effects discovery tests unless told otherwise: every library effect, with a sensor's
-    gain only on the fitted ``channels`` (all when ``None``), no sensor offset and no drive gain.
+def encoder_channels(model: Model | None = None) -> tuple[str, ...]:
+    """The channels an encoder reads: those of a rig's :class:`~jaxflex.sensors.Encoder`
+    sensors; for a rig without sensors (or none given), ``joint_angle``, the reference
+    testbed's encoder."""
+    if model is None or not model.sensors:
+        return ("joint_angle",)
+    return tuple(s.channel for s in model.sensors if isinstance(s, Encoder))
 
-    A sensor offset is left out because records start at rest and are read re-zeroed there
-    (:mod:`jaxflex.measured`): a constant then only soaks up the mean of whatever the model
-    misses (on a hidden payload it scored above the payload). Name ``sensor_offset:CHANNEL``
-    to test it on a record whose reading at rest is not zero. A drive gain is a constant of the
-    rig's drive, identified when its arm file gives it bounds (:mod:`jaxflex.arm`), not a
-    missing physical effect; name ``drive_gain`` to test one.
+
+def default_candidates(
+    channels: Iterable[str] | None = None, model: Model | None = None
+) -> list[str]:
+    """The effects discovery tests unless told otherwise: every library effect, with a sensor's
+    gain only on the fitted ``channels`` (all when ``None``) that an encoder does not read, no
+    sensor offset and no drive gain. ``model`` is the rig whose sensors read the channels
+    (:func:`encoder_channels`; ``None``: the reference testbed).
+
+    An encoder's gain is known exactly: one count is ``2π/counts_per_revolution``. A gain on
+    its channel is no calibration to find; it only rescales the angle, which mimics a missing
+    inertia or load (on a hidden payload or a tilted plane it was added beside the right
+    effect). Name ``sensor_gain:CHANNEL`` to test it anyway (a gearbox between the encoder
+    and the joint whose ratio is in doubt). A sensor offset is left out because records start
+    at rest and are read re-zeroed there (:mod:`jaxflex.measured`): a constant then only soaks
+    up the mean of whatever the model misses (on a hidden payload it scored above the payload).
+    Name ``sensor_offset:CHANNEL`` to test it on a record whose reading at rest is not zero. A
+    drive gain is a constant of the rig's drive, identified when its arm file gives it bounds
+    (:mod:`jaxflex.arm`), not a missing physical effect; name ``drive_gain`` to test one.
     """
     wanted = None if channels is None else set(channels)
+    exact = {f"{SensorGain.key}:{c}" for c in encoder_channels(model)}
     names = [
         e.name
         for e in library()
@@ -137,17 +160,18 @@ def default_candidates(channels: Iterable[str] | None = None) -> list[str]:
         and (wanted is None or getattr(e, "channel", None) in wanted | {None})
     ]
     own = [c for c in channels or () if c not in CALIBRATED_CHANNELS]  # a rig's sensor channels
-    return names + [f"{SensorGain.key}:{c}" for c in own]
+    return [n for n in names + [f"{SensorGain.key}:{c}" for c in own] if n not in exact]
 
 
 def candidate_set(
     candidates: Iterable[str | Effect | Candidate] | None = None,
     channels: Iterable[str] | None = None,
+    model: Model | None = None,
 ) -> tuple[Candidate, ...]:
     """Candidates by name or instance; ``None``: :func:`default_candidates` for ``channels``
-    (Stribeck profiled)."""
+    of ``model`` (Stribeck profiled)."""
     if candidates is None:
-        candidates = default_candidates(channels)
+        candidates = default_candidates(channels, model)
     elif isinstance(candidates, (str, Effect)):
         candidates = [candidates]
     result = tuple(as_candidate(c) for c in candidates)
@@ -163,4 +187,5 @@ __all__ = [
     "Candidate",
     "candidate_set",
     "default_candidates",
+    "encoder_channels",
 ]

@@ -258,7 +258,7 @@ def discover(
         fixed or {})
     channels = _channels(records, channels, model)
     cands = tuple(
-        c for c in candidate_set(candidates, channels) if c.name not in model.effect_names
+        c for c in candidate_set(candidates, channels, model) if c.name not in model.effect_names
     )
     if holdout is not None:
         _channels(holdout, channels, model)

@@ -58,7 +58,7 @@ def score_tests(
     records = as_dataset(records)
     values = full_params(model, params)
     cands = tuple(
-        c for c in candidate_set(candidates, channels) if c.name not in model.effect_names
+        c for c in candidate_set(candidates, channels, model) if c.name not in model.effect_names
     )
     engine = Engine.build(model, cands, records, values, noise, channels=channels)
     return engine.score_tests(engine.universe.vector(values), (), alpha)
