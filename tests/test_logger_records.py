@@ -5,8 +5,8 @@ Every record set is simulated (by jaxflex, or by SciPy Radau on the FEM equation
 zero and by an accelerometer with the spec's white noise, and written to CSV as a data logger
 writes it: with a fixed number of significant digits, or as float32 numbers. ``discover`` starts
 near the truth (as in ``test_discover``), estimates every noise level from the files, and must add
-nothing to clean records, name a hidden payload, and end within 1.3× the noise floor: the NRMSE of
-the noise-free truth against the written records.
+nothing to clean records, name a hidden payload or a tilted plane and nothing beside it, and end
+within 1.3× the noise floor: the NRMSE of the noise-free truth against the written records.
 
 A few representative cases run by default; the whole matrix (6, 7, 9 and 17 digits, float32,
 1024–10000 counts, 500 Hz and 1 kHz, 1.5–3 s) is marked slow.
@@ -35,6 +35,7 @@ from jaxflex.synthetic import ACCELEROMETER_SIGMA
 
 INPUTS = ("triangular", "pulse", "half_sine")
 PAYLOAD = 0.03  # kg, the hidden effect
+TILT = 0.06  # rad, the motion plane's tilt: the other hidden effect
 CHANNELS = ("joint_angle", "tip_acceleration")
 FLOOR_FACTOR = 1.3
 
@@ -134,11 +135,18 @@ def check_clean(report, floor, logger: Logger) -> None:
         assert report.final.nrmse[c] <= FLOOR_FACTOR * floor[c], (c, floor, report.table())
 
 
-def check_payload(report, floor) -> None:
-    assert report.added == ("payload",) and report.unexplained is None, report.table()
-    assert report.params["m_p"] == pytest.approx(PAYLOAD, rel=0.05)
+def check_found(report, floor, effect: str, key: str, value: float) -> None:
+    """The hidden ``effect`` and nothing else (no gain on the encoder beside it: one count is
+    known exactly, so it is no default candidate), ``key`` within 5 % of ``value``."""
+    assert report.added == (effect,) and report.unexplained is None, report.table()
+    assert "sensor_gain:joint_angle" not in report.candidates
+    assert report.params[key] == pytest.approx(value, rel=0.05)
     for c in CHANNELS:
         assert report.final.nrmse[c] <= FLOOR_FACTOR * floor[c], (c, floor, report.table())
+
+
+def check_payload(report, floor) -> None:
+    check_found(report, floor, "payload", "m_p", PAYLOAD)
 
 
 def run_clean(tmp_path, logger, outputs=jaxflex_outputs):
@@ -158,6 +166,15 @@ def test_clean_logger_records_add_nothing(tmp_path):
 
 def test_logger_records_name_a_hidden_payload(tmp_path):
     run_payload(tmp_path, DEFAULT_PAYLOAD)
+
+
+def test_logger_records_name_a_tilted_plane(tmp_path):
+    records, floor = logger_records(tmp_path, DEFAULT_PAYLOAD, {"gravity": {"phi": TILT}})
+    check_found(discover(records, initial=START), floor, "gravity", "phi", TILT)
+
+
+def test_radau_records_name_a_hidden_payload(tmp_path):
+    run_payload(tmp_path, DEFAULT_PAYLOAD, radau_outputs)
 
 
 @pytest.mark.slow
