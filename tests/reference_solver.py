@@ -1,17 +1,21 @@
 """An independent reference for the simulator: SciPy Radau on the full FEM equations of motion.
 
 Nothing here uses the modal basis or the stepping scheme of ``jaxflex.simulation``: it integrates
-``M q'' + D q' + K q = e_θ(τ − τ_f(θ'))`` in physical coordinates, restarting wherever the
+``M q'' + D q' + K q = e_θ(τ − τ_f(θ')) − g sin(φ) cos(θ) F`` (a tilted plane, when the model has
+gravity) in physical coordinates, restarting wherever the
 torque sample changes so the zero-order hold is exact, with tight tolerances and the analytic
 Jacobian.
 """
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 from scipy.integrate import solve_ivp
 
 from jaxflex.design import fourier_basis
+from jaxflex.effects.gravity import GRAVITY
 from jaxflex.model import Model
 
 
@@ -38,26 +42,33 @@ def radau_states(model: Model, params, torque, dt, rtol=1e-9, atol=1e-11):
     mk, md, me = inv_mass @ stiffness, inv_mass @ damping, inv_mass[:, 0]
     b_v, tau_c = float(params["b_v"]), float(params["tau_c"])
     omega_s = model.testbed.omega_s
+    # a tilted plane: the load -g sin(phi) cos(theta) on the first moment (jaxflex.effects.Gravity)
+    tilt = GRAVITY * math.sin(float(params["phi"])) if "gravity" in model.effect_names else 0.0
+    moment = inv_mass @ np.asarray(structure.first_moment)
 
     def friction(v):
         return b_v * v + tau_c * np.tanh(v / omega_s)
 
     def acceleration(x, tau):
         q, v = x[:n], x[n:]
-        return me * (tau - friction(v[0])) - md @ v - mk @ q
+        return me * (tau - friction(v[0])) - md @ v - mk @ q - tilt * math.cos(q[0]) * moment
 
     def jacobian(x):
         slope = b_v + tau_c / omega_s * (1.0 - np.tanh(x[n] / omega_s) ** 2)
         lower_right = -md.copy()
         lower_right[:, 0] -= me * slope
-        return np.block([[np.zeros((n, n)), np.eye(n)], [-mk, lower_right]])
+        lower_left = -mk.copy()
+        lower_left[:, 0] += tilt * math.sin(x[0]) * moment
+        return np.block([[np.zeros((n, n)), np.eye(n)], [lower_left, lower_right]])
 
     # Integrate each run of equal torque samples in one go (restarting where the torque steps).
     torque = np.asarray(torque, dtype=np.float64)
     steps = np.flatnonzero(np.diff(torque) != 0.0) + 1
     starts = np.concatenate([[0], steps])
     ends = np.concatenate([steps, [len(torque) - 1]])
-    x = np.zeros(2 * n)
+    x = np.zeros(2 * n)  # at rest, the hub held at 0 and the beam deflected by any tilt
+    load = -tilt * np.asarray(structure.first_moment)
+    x[1:n] = np.linalg.solve(stiffness[1:, 1:], load[1:])
     states = np.zeros((len(torque), 2 * n))
     for start, end in zip(starts, ends, strict=True):
         tau = torque[start]
