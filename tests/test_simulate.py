@@ -126,6 +126,24 @@ def test_accuracy_against_radau_on_a_designed_input():
     assert nrmse(reference[2], np.asarray(out.joint_velocity)) <= 0.5
 
 
+def test_a_tilted_plane_against_radau():
+    """Gravity's load on the first moment and the beam's static deflection at rest, integrated
+    by Radau in physical coordinates: the same tolerances, and the tilt shows (the motion
+    differs from the level plane's by far more than the tolerance)."""
+    from jaxflex.effects import get_effect
+
+    model = Model().with_effects(get_effect("gravity"))
+    params = {**REFERENCE, "phi": 0.06}
+    _, torque = reference_input("pulse")
+    reference = radau_reference(model, params, torque, model.testbed.dt)
+    out = simulate(model, params, torque)
+    assert nrmse(reference[0], np.asarray(out.joint_angle)) <= 0.05
+    assert nrmse(reference[1], np.asarray(out.tip_acceleration)) <= 0.5
+    assert nrmse(reference[2], np.asarray(out.joint_velocity)) <= 0.5
+    level = simulate(Model(), REFERENCE, torque)
+    assert nrmse(reference[0], np.asarray(level.joint_angle)) > 1.0
+
+
 def test_energy_balance_without_dissipation():
     model = Model()
     params = with_values(alpha=0.0, beta=0.0, b_v=0.0, tau_c=0.0)
