@@ -17,7 +17,7 @@ from collections.abc import Mapping, Sequence
 import numpy as np
 from matplotlib.axes import Axes
 from matplotlib.figure import Figure
-from matplotlib.ticker import MaxNLocator
+from matplotlib.ticker import FixedLocator, MaxNLocator, NullLocator
 
 from jaxflex.identification import Fit
 from jaxflex.plots._style import MARK, MODEL, RESIDUAL, figure_axes, new_figure
@@ -83,8 +83,25 @@ def _spread(rel: np.ndarray) -> str:
     """``±x %`` for a symmetric interval, ``−a/+b %`` otherwise."""
     lo, hi = -rel[0], rel[1]
     if np.isclose(lo, hi, rtol=0.05):
-        return f"±{hi:.2g} %"
-    return f"−{lo:.2g}/+{hi:.2g} %"
+        return f"±{_number(hi)} %"
+    return f"−{_number(lo)}/+{_number(hi)} %"
+
+
+def _number(value: float) -> str:
+    """Two significant digits, whole numbers from 100 on (no exponent below 10⁶)."""
+    return f"{value:.0f}" if 100 <= value < 1e6 else f"{value:.2g}"
+
+
+def _decade_ticks(linthresh: float, left: float, right: float, per_side: int = 4) -> list[float]:
+    """0 and ±powers of ten from ``linthresh`` out to the limits, at most ``per_side`` a side
+    (every second or third decade where more would crowd the labels)."""
+    ticks = [0.0]
+    for sign, limit in ((-1.0, -left), (1.0, right)):
+        first = int(np.floor(np.log10(linthresh)))
+        last = int(np.floor(np.log10(limit))) if limit > linthresh else first - 1
+        step = max(1, int(np.ceil((last - first + 1) / per_side)))
+        ticks += [sign * 10.0**k for k in range(last, first - 1, -step)]
+    return sorted(ticks)
 
 
 UNIDENTIFIABLE_REACH = 1e3
@@ -142,8 +159,11 @@ def plot_intervals(
     reach = max(finite, default=1.0)
     if any(t.endswith("not identifiable") for t in labels):
         reach = max(reach, UNIDENTIFIABLE_REACH)
-    ax.set_xscale("symlog", linthresh=linthresh, linscale=0.5)
-    ax.set_xlim(-min(1.5 * reach, 100.0), 1.5 * reach)
+    ax.set_xscale("symlog", linthresh=linthresh, linscale=1.0)
+    left, right = -min(1.5 * reach, 100.0), 1.5 * reach
+    ax.set_xlim(left, right)
+    ax.xaxis.set_major_locator(FixedLocator(_decade_ticks(linthresh, left, right)))
+    ax.xaxis.set_minor_locator(NullLocator())
     ax.set_ylim(y.min() - 0.7, y.max() + 0.5)
     ax.set_yticks(y, labels, fontsize=8)
     ax.axvline(0.0, color="0.6", linewidth=0.8)
