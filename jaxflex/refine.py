@@ -99,7 +99,11 @@ Uncertainty (Gauss–Newton)
     nothing). Measured on the reference records (noise seed 0, refined from the test start):
     correct model, robust/nominal half-widths 0.96–0.99; records with a 5 g payload fitted
     without it (24 % rms NRMSE, residual lag-1 correlation 0.99), 4.7–13.6 (E ±0.37 % →
-    ±4.7 %, J_h ±0.87 % → ±12 %).
+    ±4.7 %, J_h ±0.87 % → ±12 %); the DaISy 96-009 arm at its README fit (70 % NRMSE, lag-1
+    correlation 0.84, bandwidth 47 samples), 1.4 (E: ±0.18 % → ±0.25 %) to 3.7 (τ_c), b_v
+    not identifiable. The robust intervals answer "how much would the estimate move with
+    other records of the same kind", misfit included; they do not measure how far a wrong
+    model's best parameters are from the physical ones, which is why the label stays.
 
     An interval that is infinite or spans more than a factor ``UNIDENTIFIABLE_RATIO`` (a linear
     parameter: a half-width above its own size) is not an interval but the absence of one: the
