@@ -211,3 +211,15 @@ def test_real_rig_report_figures():
     for i, name in enumerate(comparison.names):
         assert_readable(plot_time(comparison, i), f"{name}_time")
     assert_readable(plot_frf(comparison), "frf")
+    one_peak = [len(row.measured_peaks_hz) for row in comparison]
+    assert max(one_peak) <= 1, one_peak  # one resonance in the band: at most one peak
+    # discover's diagnosis page on the rig's own channels
+    from jaxflex.diagnosis import diagnose
+    from jaxflex.plots.diagnose import plot_diagnosis
+
+    diagnosis = diagnose([comparison.record(i) for i in range(len(comparison))],
+                         [comparison.outputs(i) for i in range(len(comparison))],
+                         channels=comparison.channels)
+    page = plot_diagnosis(diagnosis, units=comparison.units)
+    assert_readable(page, "diagnosis")
+    assert not any(t.get_text().startswith("angle -0") for t in page.axes[-1].get_yticklabels())
