@@ -92,7 +92,7 @@ def _number(value: float) -> str:
     return f"{value:.0f}" if 100 <= value < 1e6 else f"{value:.2g}"
 
 
-def _decade_ticks(linthresh: float, left: float, right: float, per_side: int = 4) -> list[float]:
+def _decade_ticks(linthresh: float, left: float, right: float, per_side: int = 3) -> list[float]:
     """0 and ±powers of ten from ``linthresh`` out to the limits, at most ``per_side`` a side
     (every second or third decade where more would crowd the labels)."""
     ticks = [0.0]
@@ -167,11 +167,13 @@ def plot_intervals(
     ax.set_ylim(y.min() - 0.7, y.max() + 0.5)
     ax.set_yticks(y, labels, fontsize=8)
     ax.axvline(0.0, color="0.6", linewidth=0.8)
-    note = ", × true value" if truth is not None else ""
-    ax.set_xlabel(f"{100 * fit.level:g} % interval, % of the estimate (thin: robust{note})")
-    conditional = " - conditional on the model" if fit.model_conditional else ""
-    ax.set_title(title or f"Parameter intervals ({fit.method.upper()}, seed {fit.seed})"
-                 f"{conditional}", fontsize=10)
+    keys = ["thin: robust"] if robust else []
+    keys += ["×: true value"] if truth is not None else []
+    key = f"\n({', '.join(keys)})" if keys else ""
+    ax.set_xlabel(f"{100 * fit.level:g} % interval, % of the estimate{key}")
+    conditional = ": conditional on the model" if fit.model_conditional else ""
+    ax.set_title(title or f"Intervals ({fit.method.upper()}, seed {fit.seed}){conditional}",
+                 fontsize=10)
     return fig
 
 
