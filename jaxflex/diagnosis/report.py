@@ -53,6 +53,7 @@ class ChannelDiagnosis:
     input_correlation: CrossCorrelation
     spectrum: ResidualSpectrum
     beyond_quantisation: float | None  # RMS of (|r| − q/2)⁺ in steps q; quantised channels only
+    rate_correlation: CrossCorrelation | None = None  # the model's output rate vs the input
 
     @property
     def rms_ratio(self) -> float:
@@ -221,7 +222,8 @@ class Diagnosis:
                 "nrmse": self.frf.nrmse,
                 "bands": [vars(b) for b in self.frf.bands],
                 "resonances": [
-                    {"measured_hz": r.measured_hz, "model_hz": r.model_hz, "shift_hz": r.shift_hz}
+                    {"measured_hz": r.measured_hz, "model_hz": r.model_hz, "shift_hz": r.shift_hz,
+                     "resolution_hz": r.resolution_hz, "significant": r.significant}
                     for r in self.frf.resonances
                 ],
             }
@@ -337,6 +339,10 @@ def diagnose(
             ),
             spectrum=residual_spectrum(res, dt, noise_sigma=level.sigma),
             beyond_quantisation=beyond,
+            rate_correlation=cross_correlation(
+                [np.gradient(p[c], dt) for p in preds], [r.input for r in records],
+                max_lag=min(200, records[0].n_samples // 4), dt=dt,
+            ),
         )
     velocities = [p.get("joint_velocity") for p in preds]
     # a record without an encoder is localised along the model's joint angle
