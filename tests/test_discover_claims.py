@@ -19,7 +19,7 @@ from discovery_cases import NOISE, START, hidden, one
 from jaxflex.discovery import RULES, discover
 from jaxflex.discovery.explain import LOWERS_FREQUENCIES, noise_claim
 from jaxflex.effects import get_effect
-from jaxflex.plots.diagnose import plot_diagnosis
+from jaxflex.plots.diagnose import _LABELS, plot_diagnosis
 
 LAG_EFFECTS = {"delay", "motor_lag"}
 
@@ -113,17 +113,18 @@ def check_titles(report):
         fig = plot_diagnosis(diag)
         titles = [ax.get_title() for ax in fig.axes]
         for name, channel in diag.channels.items():
-            ok, words = noise_claim(channel, diag.alpha)
+            ok, verdict, statistic = noise_claim(channel, diag.alpha)
             assert ok == channel.consistent(diag.alpha)
-            assert any(words in t for t in titles), (words, titles)
+            label = _LABELS.get(name, name)
+            assert f"{label}: {verdict}\n{statistic}" in titles, (verdict, titles)
             if channel.noise.kind == "white":
-                assert ("consistent with noise" in words) == (
+                assert (verdict == "consistent with noise") == (
                     channel.whiteness.p_value >= diag.alpha
                     and channel.rms_ratio <= 1.3)
             # a rejecting Ljung-Box beside "consistent": only where it is not the channel's test
-            acf = next(t for t in titles if t.startswith(f"{name.replace('_', ' ')}: Ljung-Box"))
+            acf = next(t for t in titles if t.startswith(f"{label}: Ljung-Box"))
             if ok and channel.whiteness.p_value < diag.alpha:
-                assert channel.noise.kind == "quantised" and "(not its noise test)" in acf
+                assert channel.noise.kind == "quantised" and "not its noise test" in acf
 
 
 def _holdout(name, value):
@@ -164,8 +165,8 @@ def test_clean_records_explain_nothing_and_say_noise():
     check_claims(report)
     assert not any("explains" in line for line in report.explanations())
     for channel in report.final.diagnosis.channels.values():
-        ok, words = noise_claim(channel, report.final.diagnosis.alpha)
-        assert ok and words.startswith("consistent with noise")
+        ok, verdict, _ = noise_claim(channel, report.final.diagnosis.alpha)
+        assert ok and verdict == "consistent with noise"
 
 
 def test_a_quantised_channel_is_judged_by_its_own_test():
@@ -178,10 +179,13 @@ def test_a_quantised_channel_is_judged_by_its_own_test():
     preds = [simulate(model, params, r.torque) for r in records]
     diag = diagnose(records, preds, noise=NOISE)
     angle = diag.channels["joint_angle"]
-    ok, words = noise_claim(angle, diag.alpha)
-    assert ok and "steps RMS beyond ±q/2" in words and "Ljung" not in words
+    ok, verdict, statistic = noise_claim(angle, diag.alpha)
+    assert ok and "steps RMS beyond ±q/2 ≤ 0.25" in statistic and "Ljung" not in statistic
+    assert angle.whiteness.p_value < diag.alpha  # what the title must not hide
     titles = [ax.get_title() for ax in plot_diagnosis(diag).axes]
-    assert any("joint angle: Ljung-Box" in t and "(not its noise test)" in t for t in titles)
+    assert f"joint angle: {verdict}\n{statistic}" in titles
+    assert any("joint angle: Ljung-Box" in t and "quantised: not its noise test" in t
+               for t in titles)
     assert not any("tip acceleration: Ljung-Box" in t and "not its" in t for t in titles)
 
 
@@ -195,7 +199,7 @@ def test_every_rule_is_listed_in_the_docs_table():
     assert get_effect("torque_offset").parameters[0].unit != "s"  # not a lag effect
 
 
-@pytest.mark.slow  # about 80 s on a busy 2-core machine (DE 10 x 20, one step, 60 s held out)
+@pytest.mark.slow  # 35 s on a busy 2-core machine (DE 10 x 20, one step, 60 s held out)
 def test_rotflex_claims_match_their_statistics():
     from test_arm import ARMS
     from test_datasets import REAL_DATA_DIR, _or_skip

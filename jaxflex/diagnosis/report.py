@@ -42,7 +42,12 @@ QUANTISED_EXCESS_LIMIT = 0.25
 
 @dataclass(frozen=True)
 class ChannelDiagnosis:
-    """Everything about one output channel's residuals, pooled over the records."""
+    """Everything about one output channel's residuals, pooled over the records.
+
+    ``rate_correlation`` is the model's own output rate (its time derivative) correlated with
+    the input: a late torque leaves a residual ``≈ −d·ẏ``, so a residual–input correlation of
+    the opposite sign at the same lag is what a delay would leave.
+    """
 
     channel: str
     nrmse: float  # percent, mean over records
@@ -170,9 +175,11 @@ class Diagnosis:
                          f"{self.frf.nrmse:.3g} %")
             for r in self.frf.resonances:
                 if abs(r.shift_hz) >= 0.05:
+                    where = "beyond" if r.significant else "within"
                     lines.append(
                         f"  resonance measured at {r.measured_hz:.2f} Hz, model "
-                        f"{r.model_hz:.2f} Hz ({r.shift_hz:+.2f} Hz)"
+                        f"{r.model_hz:.2f} Hz ({r.shift_hz:+.2f} Hz, {where} the "
+                        f"{r.resolution_hz:.2g} Hz resolution)"
                     )
         if self.consistent_with_noise:
             return lines

@@ -122,6 +122,7 @@ def _magnitude(values: Mapping[str, float], units: Mapping[str, str]) -> str:
         elif unit == "s" and abs(value) < 1:
             parts.append(f"{name} = {1e3 * value:.3g} ms")
         else:
+            unit = "" if unit in ("1", "-") else unit
             parts.append(f"{name} = {value:.3g} {unit}".rstrip())
     return ", ".join(parts)
 
@@ -262,7 +263,7 @@ def _held(ev: Mapping[str, Any]) -> str:
     before, after = ev.get("holdout_error_before"), (ev.get("refit") or {}).get("holdout_error")
     if before is None or after is None:
         return ""
-    return f"; held-out error {100 * before:.3g} % → {100 * after:.3g} %"
+    return f"; held-out error (mean over the channels) {100 * before:.3g} % → {100 * after:.3g} %"
 
 
 def _refit_gain(ev: Mapping[str, Any]) -> str:
@@ -300,12 +301,13 @@ def _verdict(status: str, ev: Mapping[str, Any], chosen: str | None,
             why.append("its parameters ended on their null-side bound")
         return f"not added, not confirmed ({'; '.join(why)}): {_refit_gain(ev)}"
     if status == "not_refitted":
-        why = ("S below 10 % of the best" if ev.get("refit_skipped") == "ratio"
-               else "more significant candidates filled the refits")
+        why = {"ratio": "S below 10 % of the best",
+               "full": "more significant candidates filled the refits"}.get(
+            ev.get("refit_skipped"), "no refit was run")
         return (f"significant (S = {score['S']:.3g}, p = {_p(score['p_value'])}) but not "
                 f"refitted ({why}): {_refit_gain(ev)}")
-    return (f"not significant (p = {_p(score['p_value'])}, not below "
-            f"{_p(score['level'])}): {_refit_gain(ev)}")
+    level = (f", not below {_p(score['level'])}" if math.isfinite(score["level"]) else "")
+    return f"not significant (p = {_p(score['p_value'])}{level}): {_refit_gain(ev)}"
 
 
 def claims(result: ScoreResult, status: str, *, chosen: str | None = None,
@@ -345,6 +347,19 @@ def sentence(result: ScoreResult) -> str:
     return text + "."
 
 
+def explain(result: ScoreResult, effect: Effect, diagnosis: Diagnosis | None,
+            level: float | None = None) -> str:
+    """The claims on one score test outside the loop (no refit): its verdict by the score
+    alone and the evidence of ``diagnosis`` that points to ``effect``, by :data:`RULES`.
+
+    ``level`` is the test's level (default: none stated; ``result.significant`` decides)."""
+    ev = collect_evidence(result, effect, diagnosis, level=math.nan if level is None else level)
+    r = dataclasses.replace(result, evidence=ev)
+    status = status_of(r, None, None, ())
+    r = dataclasses.replace(r, status=status, claims=tuple(claims(r, status)))
+    return sentence(r)
+
+
 def annotate(steps: Sequence[Any], withdrawn: Sequence[str], min_explained: float) -> list[Any]:
     """The steps with every ranked candidate's status, claims and explanation set."""
     out = []
@@ -378,20 +393,21 @@ def ranking_line(structure: str, ranking: Sequence[ScoreResult], top: int = 3) -
             f"p-value: {', '.join(parts)}")
 
 
-def noise_claim(channel: ChannelDiagnosis, alpha: float) -> tuple[bool, str]:
-    """The ``"noise"`` rule: (consistent, the title's words) for one channel's residual."""
+def noise_claim(channel: ChannelDiagnosis, alpha: float) -> tuple[bool, str, str]:
+    """The ``"noise"`` rule for one channel's residual: (consistent, the verdict, the statistic
+    that decided it), e.g. ``(False, "misfit", "RMS 77 σ > 1.3 σ; Ljung-Box p = 0 < 0.01")``."""
     if channel.noise.kind == "quantised":
         beyond = channel.beyond_quantisation
-        ok = beyond is not None and beyond <= QUANTISED_EXCESS_LIMIT
-        stat = (f"{beyond:.2g} steps RMS beyond ±q/2 ({'≤' if ok else '>'} "
-                f"{QUANTISED_EXCESS_LIMIT:g})" if beyond is not None else "no quantisation test")
+        ok = channel.consistent(alpha)
+        stat = (f"{beyond:.2g} steps RMS beyond ±q/2 {'≤' if ok else '>'} "
+                f"{QUANTISED_EXCESS_LIMIT:g}" if beyond is not None else "no quantisation test")
     else:
         ratio, p = channel.rms_ratio, channel.whiteness.p_value
         ok = channel.consistent(alpha)
-        stat = (f"RMS {ratio:.2g} σ ({'≤' if ratio <= RMS_RATIO_LIMIT else '>'} "
-                f"{RMS_RATIO_LIMIT:g}), Ljung-Box p = {_p(p)} "
-                f"({'not below' if channel.whiteness.white(alpha) else 'below'} {_p(alpha)})")
-    return ok, f"{'consistent with noise' if ok else 'misfit'}: {stat}"
+        stat = (f"RMS {ratio:.2g} σ {'≤' if ratio <= RMS_RATIO_LIMIT else '>'} "
+                f"{RMS_RATIO_LIMIT:g} σ; Ljung-Box p = {_p(p)} "
+                f"{'≥' if channel.whiteness.white(alpha) else '<'} {_p(alpha)}")
+    return ok, "consistent with noise" if ok else "misfit", stat
 
 
 __all__ = [
@@ -400,6 +416,7 @@ __all__ = [
     "annotate",
     "claims",
     "collect_evidence",
+    "explain",
     "noise_claim",
     "ranking_key",
     "ranking_line",

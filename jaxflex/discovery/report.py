@@ -198,7 +198,7 @@ class DiscoveryReport:
             if s.ranking:
                 lines.append(ranking_line(s.structure, s.ranking))
         if self.withdrawn:
-            held = " nor lowered the held-out error" if self.holdout is not None else ""
+            held = " and did not lower the held-out error" if self.holdout is not None else ""
             share = 100 * self.settings.get("min_explained", 0.9)
             lines.append(f"withdrawn (removed less than {share:.0f} % of the misfit above the "
                          f"noise{held}): {', '.join(self.withdrawn)}")

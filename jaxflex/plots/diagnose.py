@@ -127,15 +127,15 @@ def plot_diagnosis(diagnosis: Diagnosis, *, figsize=(13.0, 9.0), dpi: float = 10
     for row, name in enumerate(channels):
         c = diagnosis.channels[name]
         label = _LABELS.get(name, name)
-        _, status = noise_claim(c, diagnosis.alpha)
+        _, verdict, statistic = noise_claim(c, diagnosis.alpha)
         axes = [style(fig.add_subplot(grid[row, k])) for k in range(3)]
-        # a quantised channel's noise test is the quantisation excess, not Ljung-Box
-        test = "" if c.noise.kind == "white" else " (not its noise test)"
         plot_autocorrelation(c.whiteness, axes[0], title=f"{label}:")
-        if test:
-            axes[0].set_title(axes[0].get_title() + test, fontsize="medium")
+        if c.noise.kind != "white":  # a quantised channel's noise test is not Ljung-Box
+            axes[0].set_title(axes[0].get_title() + "\n(quantised: not its noise test)",
+                              fontsize="small")
         plot_cross_correlation(c.input_correlation, axes[1], title=f"{label} vs torque")
-        plot_spectrum(c.spectrum, axes[2], title=f"{label}\n{status}")
+        plot_spectrum(c.spectrum, axes[2], title=f"{label}: {verdict}\n{statistic}")
+        axes[2].title.set_fontsize("small")
     ax = style(fig.add_subplot(grid[:, 3]))
     plot_localisation(diagnosis.localisation, ax)
     return fig
