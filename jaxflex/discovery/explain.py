@@ -58,8 +58,9 @@ RULES: dict[str, Rule] = {r.name: r for r in (
     Rule("explains", "the effect explains the misfit it removed",
          "the effect was added at this step and kept in the final model"),
     Rule("withdrawn", "the effect was added, then withdrawn",
-         "the effect was added at this step, removed less than the kept share of the misfit "
-         "above the noise and did not lower the held-out error"),
+         "the effect was added at this step, removed less than MIN_EXPLAINED (90 %) of the "
+         "misfit above the noise and did not lower the held-out error (the mean over the "
+         "channels), and the final residuals are not noise"),
     Rule("lower", "not added: its refit gain is lower than the added effect's",
          "the refit confirmed the effect but another confirmed candidate's LR is larger"),
     Rule("not_confirmed", "not added: the refit did not confirm it",
@@ -67,7 +68,8 @@ RULES: dict[str, Rule] = {r.name: r for r in (
          "BIC did not fall, or its parameters ended on their null-side bound"),
     Rule("not_refitted", "significant, but not refitted",
          "the score (or profile) test is significant at the step's level, but S is below "
-         "10 % of the best S or more significant candidates filled the refits"),
+         "CONFIRM_RATIO (10 %) of the best S or more significant candidates filled the "
+         "refits"),
     Rule("not_significant", "not significant",
          "the score test's p-value is not below the step's level (and no profile scan "
          "found it)"),
@@ -83,14 +85,14 @@ RULES: dict[str, Rule] = {r.name: r for r in (
          "the effect delays the torque (an input effect with a parameter in seconds), the "
          "residual–torque correlation peaks outside its 95 % band at a positive lag, and "
          "there the model's own output rate correlates with the torque with the opposite "
-         "sign and at least half its peak strength"),
+         f"sign and at least {RATE_SHARE:g} of its peak strength"),
     Rule("concentration", "the misfit lies where the effect acts",
          "the effect acts through friction or a load and one operating condition holds more "
-         "than 1.5 times its share of the time of the misfit"),
+         f"than {CONCENTRATION:g} times its share of the time of the misfit"),
     Rule("noise", "a channel's residual is consistent with the measurement noise",
-         "the channel's own noise test passes: white noise, RMS within 1.3 σ and Ljung–Box "
-         "p not below the level; quantised, the residual beyond ±q/2 within 0.25 steps RMS; "
-         "otherwise the title states the failing statistic"),
+         f"the channel's own noise test passes: white noise, RMS within {RMS_RATIO_LIMIT:g} σ "
+         "and Ljung–Box p not below the level; quantised, the residual beyond ±q/2 within "
+         f"{QUANTISED_EXCESS_LIMIT:g} steps RMS; the title states the statistic either way"),
 )}
 """The rules, by name; a claim is made only where its rule's condition holds."""
 
