@@ -154,7 +154,7 @@ def test_a_hidden_delay_cites_the_lag_it_leaves():
     top = data["ranking"][0][0]
     assert top["status"] == "explains"
     assert any(c["rule"] == "lag" for c in top["claims"]), top["explanation"]
-    assert "ms (correlation" in top["explanation"] and "the response comes late" in (
+    assert "ms before it (" in top["explanation"] and "as a late response leaves it" in (
         top["explanation"])
 
 

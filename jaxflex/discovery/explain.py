@@ -327,10 +327,11 @@ def claims(result: ScoreResult, status: str, *, chosen: str | None = None,
     lag = ev.get("lag")
     if lag and lag["cited"]:
         out.append({"rule": "lag", "text": (
-            f"{lag['channel']} residual follows the torque by {1e3 * lag['lag_s']:+.0f} ms "
-            f"(correlation {lag['value']:+.2f}, band ±{lag['band']:.2g}) with the sign "
-            f"opposite to the model's own rate ({lag['rate_value']:+.2f}): the response comes "
-            f"late")})
+            f"{lag['channel']} residual correlates most with the torque "
+            f"{1e3 * lag['lag_s']:.0f} ms before it ({lag['value']:+.2f}, band "
+            f"±{lag['band']:.2g}), where the model's own {lag['channel']} rate correlates "
+            f"{lag['rate_value']:+.2f}: the residual has the opposite sign of the rate, as a "
+            f"late response leaves it")})
     conc = ev.get("concentration")
     if conc and conc["cited"]:
         out.append({"rule": "concentration", "text": (
