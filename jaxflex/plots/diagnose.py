@@ -28,6 +28,7 @@ from jaxflex.diagnosis import (
     Localisation,
     ResidualSpectrum,
 )
+from jaxflex.discovery.explain import noise_claim
 from jaxflex.plots._style import MARK, MEASURED, MODEL, RESIDUAL, figure_axes, new_figure, style
 
 _LABELS = {"joint_angle": "joint angle", "tip_acceleration": "tip acceleration",
@@ -136,12 +137,16 @@ def plot_diagnosis(diagnosis: Diagnosis, *, figsize=(13.0, 9.0), dpi: float = 10
     for row, name in enumerate(channels):
         c = diagnosis.channels[name]
         label = _label(name)
-        status = "consistent with noise" if c.consistent(diagnosis.alpha) else "misfit"
+        _, verdict, statistic = noise_claim(c, diagnosis.alpha)
         axes = [style(fig.add_subplot(grid[row, k])) for k in range(3)]
         plot_autocorrelation(c.whiteness, axes[0], title=f"{label}: whiteness")
+        if c.noise.kind != "white":  # a quantised channel's noise test is not Ljung-Box
+            axes[0].set_title(axes[0].get_title() + "\n(quantised: not its noise test)",
+                              fontsize="small")
         plot_cross_correlation(c.input_correlation, axes[1], title=f"{label} vs torque")
-        plot_spectrum(c.spectrum, axes[2], title=f"{label} ({status})",
+        plot_spectrum(c.spectrum, axes[2], title=f"{label}: {verdict}\n{statistic}",
                       unit=units.get(name, ""))
+        axes[2].title.set_fontsize("small")
     ax = style(fig.add_subplot(grid[:, 3]))
     plot_localisation(diagnosis.localisation, ax)
     return fig
