@@ -27,7 +27,9 @@ HERE = Path(__file__).parent
 ROOT = HERE.parent
 sys.path.insert(0, str(ROOT))
 
-from jaxflex._io import OutputError, check_writable, provenance, write_json  # noqa: E402
+from _output import checked_out  # noqa: E402
+
+from jaxflex._io import provenance, write_json  # noqa: E402
 
 RESULTS = HERE / "results" / "cli_startup.json"
 COMMANDS: dict[str, tuple[list[str], str]] = {
@@ -62,10 +64,7 @@ def main() -> None:
                         help="what the baseline is, e.g. its commit (default: baseline)")
     parser.add_argument("--out", default=str(RESULTS))
     args = parser.parse_args()
-    try:  # before any work
-        out = check_writable(args.out, overwrite=True, suffixes=(".json",))
-    except OutputError as error:
-        parser.error(str(error))
+    out = checked_out(parser, args.out)  # before any work
     roots = {"this checkout": ROOT}
     if args.baseline is not None:
         if not (args.baseline / "jaxflex" / "__init__.py").is_file():

@@ -25,11 +25,12 @@ os.environ.setdefault("JAXFLEX_HOST_DEVICES", "1")  # one device: the cost of on
 
 import jax  # noqa: E402
 import numpy as np  # noqa: E402
+from _output import checked_out  # noqa: E402
 from profile_simulate import compiled_batch  # noqa: E402
 from reference_solver import designed_torque, radau_reference  # noqa: E402
 
 import jaxflex  # noqa: E402
-from jaxflex._io import OutputError, check_writable, provenance, write_json  # noqa: E402
+from jaxflex._io import provenance, write_json  # noqa: E402
 from jaxflex.metrics import nrmse  # noqa: E402
 from jaxflex.model import Model  # noqa: E402
 from jaxflex.signals import reference_input  # noqa: E402
@@ -65,10 +66,7 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--out", default=str(RESULTS))
     args = parser.parse_args()
-    try:  # before any work
-        out = check_writable(args.out, overwrite=True, suffixes=(".json",))
-    except OutputError as error:
-        parser.error(str(error))
+    out = checked_out(parser, args.out)  # before any work
     params = jaxflex.reference_parameters()
     torques = inputs()
     references = {name: radau_reference(Model(), params, t, 1e-3) for name, t in torques.items()}
@@ -80,9 +78,9 @@ def main() -> None:
             run = jax.jit(lambda p, t, m=model: simulator.simulate_core(m, p, t, 1e-3))
             errors = {}
             for name, torque in torques.items():
-                out = run(params, torque)
+                simulated = run(params, torque)
                 errors[name] = {
-                    channel: nrmse(references[name][k], getattr(out, channel))
+                    channel: nrmse(references[name][k], getattr(simulated, channel))
                     for k, channel in enumerate(TARGETS)
                 }
             batch, candidates = compiled_batch(model, 100, torques["pulse"])

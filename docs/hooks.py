@@ -1,6 +1,7 @@
 """MkDocs hooks: the API reference must document every public name, its overview table is
-generated from ``jaxflex.__all__``, and the command-line page shows each command's ``--help``
-(generated from the parser, so that neither goes stale).
+generated from ``jaxflex.__all__``, the command-line page shows each command's ``--help``
+(generated from the parser) and the effects page the rules of discover's claims (from
+``jaxflex.discovery.explain.RULES``), so that none goes stale.
 
 A public name is one listed in ``__all__`` of ``jaxflex`` or of any public module or subpackage
 (or, for a module without ``__all__``, any name it defines without a leading underscore). Each
@@ -24,6 +25,7 @@ BLOCK = re.compile(r"^:::\s+([\w.]+)", re.M)
 NOT_API = "jaxflex.cli"  # the command line has its own page
 OVERVIEW_MARKER = "<!-- jaxflex.__all__ -->"
 COMMANDS_MARKER = "<!-- commands -->"
+RULES_MARKER = "<!-- discover claim rules -->"
 HELP_WIDTH = "100"
 
 _package: griffe.Module | None = None
@@ -60,7 +62,19 @@ def on_page_markdown(markdown, page, config, files):
         markdown = markdown.replace(OVERVIEW_MARKER, _overview())
     if COMMANDS_MARKER in markdown:
         markdown = markdown.replace(COMMANDS_MARKER, _commands())
+    if RULES_MARKER in markdown:
+        markdown = markdown.replace(RULES_MARKER, _claim_rules())
     return markdown
+
+
+def _claim_rules() -> str:
+    """A table of :data:`jaxflex.discovery.explain.RULES`: claim, what it says, when."""
+    from jaxflex.discovery.explain import RULES
+
+    rows = ["| claim | what it says | made only when |", "|---|---|---|"]
+    for rule in RULES.values():
+        rows.append(f"| `{rule.name}` | {rule.says} | {rule.when} |".replace("\n", " "))
+    return "\n".join(rows) + "\n"
 
 
 def _overview() -> str:

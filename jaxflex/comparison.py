@@ -130,7 +130,7 @@ class RecordComparison:
     frf_nrmse_raw: float  # percent, every bin of the band (NaN if one is not finite)
     frf_bins: tuple[int, int]  # (compared, in band)
     noise_floor: dict[str, float]  # percent NRMSE that the sensor noise alone gives; {} if unknown
-    measured_peaks_hz: tuple[float, ...]  # local maxima of |H_measured| among compared bins
+    measured_peaks_hz: tuple[float, ...]  # prominent maxima of |H_measured| (compared bins)
     model_peaks_hz: tuple[float, ...]  # the same for |H_model|
     frf: FRF = field(repr=False)
 
@@ -555,18 +555,37 @@ def _safe_frf_nrmse(frf: FRF, bins: np.ndarray, f_max: float) -> float:
     return frf_nrmse(frf.freqs[bins], h_meas, h_model, f_max=f_max)
 
 
+PEAK_MIN_DB = 6.0
+"""An FRF peak must stand at least this many dB above the valleys around it (prominence)."""
+PEAK_SHARE = 0.6
+"""... and at least this share of the most prominent peak's prominence (in dB): the noise of a
+measured FRF makes dozens of local maxima, and a one-resonance arm shows one peak."""
+
+
 def _peaks(freqs: np.ndarray, magnitude: np.ndarray, valid: np.ndarray) -> tuple[float, ...]:
-    """Frequencies of local maxima of ``magnitude`` whose two neighbours are valid bins too,
-    refined by a parabola through the log-magnitudes of the three bins."""
-    found = []
-    for i in range(1, magnitude.size - 1):
-        if not valid[i - 1 : i + 2].all():
-            continue
-        a, b, c = np.log(magnitude[i - 1 : i + 2])
-        if b > a and b > c:
-            offset = 0.5 * (a - c) / (a - 2.0 * b + c)
-            found.append(float(freqs[i] + offset * (freqs[i + 1] - freqs[i])))
-    return tuple(found)
+    """Frequencies of the prominent maxima of ``magnitude`` among the valid bins (prominence in
+    dB over the valid bins only, at least :data:`PEAK_MIN_DB` and :data:`PEAK_SHARE` of the
+    largest), refined by a parabola through the log-magnitudes of three adjacent bins where
+    both neighbours are valid."""
+    from scipy.signal import find_peaks
+
+    bins = np.flatnonzero(valid & (magnitude > 0) & np.isfinite(magnitude))
+    if bins.size < 3:
+        return ()
+    level = 20.0 * np.log10(magnitude[bins])
+    found, props = find_peaks(level, prominence=PEAK_MIN_DB)
+    if not found.size:
+        return ()
+    keep = props["prominences"] >= PEAK_SHARE * props["prominences"].max()
+    out = []
+    for i in bins[found[keep]]:
+        f = float(freqs[i])
+        if 0 < i < magnitude.size - 1 and valid[i - 1 : i + 2].all():
+            a, b, c = np.log(magnitude[i - 1 : i + 2])
+            if b > a and b > c:
+                f += float(0.5 * (a - c) / (a - 2.0 * b + c) * (freqs[i + 1] - freqs[i]))
+        out.append(f)
+    return tuple(out)
 
 
 # --- helpers ------------------------------------------------------------------------------------

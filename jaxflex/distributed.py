@@ -48,11 +48,6 @@ import threading
 import time
 from collections.abc import Iterator, Sequence
 
-import jax
-from jax.experimental import multihost_utils
-
-from jaxflex.parallel import default_host_devices, usable_cores
-
 COORDINATOR_ENV = "JAX_COORDINATOR_ADDRESS"
 POLL_S = 0.2
 STOP_S = 10.0
@@ -101,6 +96,8 @@ def start(processes: int | None, process_id: int | None, coordinator: str | None
         # of a search may finish compiling minutes apart on busy hosts; once open, a
         # collective waits as long as it takes (measured: 45 s of skew, jax 0.10.2, CPU
         # collectives over Gloo).
+        from jax.experimental import multihost_utils
+
         multihost_utils.sync_global_devices("jaxflex: group started")
 
 
@@ -111,6 +108,8 @@ def _initialize(processes: int | None, process_id: int | None, coordinator: str 
     failure) when its own timeout ends, so this wait ends first, and Ctrl-C and SIGTERM reach
     their handlers meanwhile."""
     failure: list[BaseException] = []
+
+    import jax
 
     def join() -> None:
         try:
@@ -172,6 +171,8 @@ def wanted(processes: int | None, process_id: int | None, coordinator: str | Non
 
 def check_local_group(processes: int) -> None:
     """Refuse a group of more local processes than the usable cores (ValueError)."""
+    from jaxflex.parallel import usable_cores
+
     cores = usable_cores()
     if processes > cores:
         raise ValueError(
@@ -183,6 +184,8 @@ def check_local_group(processes: int) -> None:
 
 def is_main() -> bool:
     """Whether this is the process that prints and writes (process 0, or the only one)."""
+    import jax
+
     return jax.process_index() == 0
 
 
@@ -212,6 +215,8 @@ def launch_local(argv: Sequence[str], processes: int, prefix: str = "jaxflex") -
     check_local_group(processes)
     coordinator = f"localhost:{free_port()}"
     env = dict(os.environ)
+    from jaxflex.parallel import default_host_devices
+
     env.setdefault("JAXFLEX_HOST_DEVICES", str(max(1, default_host_devices() // processes)))
     env[LAUNCHER_ENV] = str(os.getpid())
     logs = [tempfile.TemporaryFile() for _ in range(processes)]

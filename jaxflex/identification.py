@@ -115,6 +115,14 @@ class Fit:
     evolutionary search found. ``model_description`` is the whole rig (drive, sensors, specs,
     effects), so ``model()`` rebuilds the :class:`Model` exactly, whatever became of its arm
     file.
+
+    The nominal ``intervals`` assume the model is right and the noise white;
+    ``robust_intervals`` (HAC, from the residuals themselves) hold without that, and
+    ``residual_checks`` says whether the residuals are white and whether the nominal intervals
+    are therefore only conditional on the model (:attr:`model_conditional`; see
+    :func:`jaxflex.refine.uncertainty`). ``unidentifiable`` names parameters whose interval is
+    infinite or spans decades: not identifiable from these records. Fit files written before
+    these fields existed load with them empty.
     """
 
     params: dict[str, float]
@@ -140,6 +148,10 @@ class Fit:
     level: float = 0.95
     identifiability: dict[str, Any] = field(default_factory=dict)
     provenance: dict[str, Any] = field(default_factory=dict)
+    unidentifiable: tuple[str, ...] = ()
+    robust_intervals: dict[str, tuple[float, float]] = field(default_factory=dict)
+    robust_std: dict[str, float] = field(default_factory=dict)
+    residual_checks: dict[str, Any] = field(default_factory=dict)
 
     # --- use -------------------------------------------------------------------------------
     def model(self) -> Model:
@@ -160,30 +172,48 @@ class Fit:
         """``100·√cost``: the root-mean-square of the normalised errors, in percent."""
         return 100.0 * math.sqrt(self.cost) if math.isfinite(self.cost) else math.inf
 
+    @property
+    def model_conditional(self) -> bool:
+        """True when the residuals are not white and the robust intervals are materially wider:
+        the nominal intervals then hold only if the model were right and the noise white."""
+        return bool(self.residual_checks.get("conditional", False))
+
     def summary(self) -> str:
-        """A text table: value, interval and relative half-width of each parameter."""
+        """A text table: value, nominal interval and relative half-width of each parameter,
+        and the robust half-width beside it; what the intervals assume, in words."""
         from jaxflex.parameters import BASE_PARAMETERS
 
         units = {s.name: s.unit for s in BASE_PARAMETERS}
         units.update({s.name: s.unit for s in self.model().space.specs})
         pct = f"{100 * self.level:g} %"
+        robust = bool(self.robust_intervals)
         lines = [
             f"{self.method.upper()} seed {self.seed}: cost {self.cost:.6g} "
             f"(search {self.cost_search:.6g}, rms NRMSE {self.nrmse:.4g} %)",
-            f"{'parameter':<10} {'value':>12} {pct + ' interval':>29} {'±%':>8}  unit",
+            f"{'parameter':<10} {'value':>12} {pct + ' interval':>29} {'±%':>8}"
+            + (f" {'robust ±%':>10}" if robust else "") + "  unit",
         ]
         for n in self.params:
             value = self.params[n]
-            if n in self.intervals:
+            unit = units.get(n, "")
+            if n in self.unidentifiable:
+                lines.append(f"{n:<10} {value:>12.6g}  not identifiable from these records"
+                             f"  {unit}")
+            elif n in self.intervals:
                 lo, hi = self.intervals[n]
-                rel = 50.0 * (hi - lo) / abs(value) if value else math.nan
+                rel = _half_width_percent(value, lo, hi)
                 flag = "  poorly identifiable" if n in self.poorly_identifiable else ""
+                extra = ""
+                if robust and n in self.robust_intervals:
+                    extra = f" {_half_width_percent(value, *self.robust_intervals[n]):>10.3g}"
                 lines.append(
-                    f"{n:<10} {value:>12.6g} [{lo:>12.6g}, {hi:>12.6g}] {rel:>8.3g}  "
-                    f"{units.get(n, '')}{flag}"
+                    f"{n:<10} {value:>12.6g} [{lo:>12.6g}, {hi:>12.6g}] {rel:>8.3g}{extra}  "
+                    f"{unit}{flag}"
                 )
             else:
-                lines.append(f"{n:<10} {value:>12.6g} {'(fixed)':>29} {'':>8}  {units.get(n, '')}")
+                lines.append(f"{n:<10} {value:>12.6g} {'(fixed)':>29} {'':>8}  {unit}")
+        if self.intervals:
+            lines.append(self.interval_note())
         if self.refinement is not None:
             r = self.refinement
             lines.append(
@@ -192,6 +222,21 @@ class Fit:
             )
         lines += [f"warning: {w}" for w in self.warnings]
         return "\n".join(lines) + "\n"
+
+    def interval_note(self) -> str:
+        """One sentence: what the intervals assume and whether the residuals allow it."""
+        if not self.residual_checks:
+            return ("intervals: assume the model is right and the noise white (not checked: "
+                    "this fit predates the residual checks)")
+        if self.model_conditional:
+            widen = [w for w in self.residual_checks.get("widening", {}).values()
+                     if w is not None and math.isfinite(w)]
+            span = f" ({min(widen):.3g}-{max(widen):.3g} x wider)" if widen else ""
+            return ("intervals: CONDITIONAL on the model - they assume the model is right and "
+                    "the noise white, and the residuals are not white; read the robust "
+                    f"(HAC) ones{span}")
+        return ("intervals: assume the model is right and the noise white; the robust (HAC) "
+                "ones agree")
 
     # --- files -----------------------------------------------------------------------------
     def to_dict(self) -> dict[str, Any]:
@@ -246,6 +291,11 @@ class Fit:
             level=float(data.get("level", 0.95)),
             identifiability=_identifiability(data.get("identifiability", {})),
             provenance=dict(data.get("provenance", {})),
+            unidentifiable=tuple(data.get("unidentifiable", ())),
+            robust_intervals={k: (_float(v[0]), _float(v[1]))
+                              for k, v in data.get("robust_intervals", {}).items()},
+            robust_std={k: _float(v) for k, v in data.get("robust_std", {}).items()},
+            residual_checks=dict(data.get("residual_checks", {})),
         )
 
     @classmethod
@@ -420,7 +470,12 @@ FIT_SCHEMA = _record({
     "identifiability": _record({"eigenvalues": _NUMBERS, "eigenvectors": _matrix_field},
                                optional=("eigenvalues", "eigenvectors")),
     "provenance": _typed(dict, "an object"),
-}, optional=("level", "identifiability", "provenance"))
+    "unidentifiable": _STRINGS,
+    "robust_intervals": _object_of(_list_of(_number_field(), length=2)),
+    "robust_std": _object_of(_number_field()),
+    "residual_checks": _typed(dict, "an object"),
+}, optional=("level", "identifiability", "provenance", "unidentifiable", "robust_intervals",
+             "robust_std", "residual_checks"))
 """The fit file, field by field: each entry checks one field and names it when it is wrong."""
 
 
@@ -449,6 +504,11 @@ def check_fit(data: Any) -> None:
 def load_fit(path: str | os.PathLike) -> Fit:
     """Read a fit file written by :meth:`Fit.to_json` (or ``jaxflex identify --out``)."""
     return Fit.from_json(path)
+
+
+def _half_width_percent(value: float, lo: float, hi: float) -> float:
+    """Half the interval's width in percent of the value (NaN at a zero value)."""
+    return 50.0 * (hi - lo) / abs(value) if value else math.nan
 
 
 def _float(value: Any) -> float:
@@ -677,7 +737,17 @@ def identify(
             "at_bounds": list(unc.at_bounds),
         },
         provenance=provenance(),
+        unidentifiable=() if unc is None else unc.unidentifiable,
+        robust_intervals={} if unc is None else unc.robust_intervals,
+        robust_std={} if unc is None or unc.robust_std is None
+        else dict(zip(unc.names, map(float, unc.robust_std), strict=True)),
+        residual_checks={} if unc is None else _jsonable_checks(unc.residual_checks),
     )
+
+
+def _jsonable_checks(checks: Mapping[str, Any]) -> dict[str, Any]:
+    """The residual checks without the per-series bandwidths (each channel keeps its largest)."""
+    return {k: v for k, v in checks.items() if k != "hac_lags"}
 
 
 def _ordered(objective: Objective, estimate: Mapping[str, float]) -> dict[str, float]:

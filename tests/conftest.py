@@ -1,8 +1,27 @@
-"""Shared test set-up: float64 JAX, and the independent reference solver importable by name."""
+"""Shared test set-up: float64 JAX, the independent reference solver importable by name, and
+the real-rig records as CSV files."""
 
 import sys
 from pathlib import Path
 
+import pytest
+
 import jaxflex  # noqa: F401  (enables float64 before any test builds arrays)
 
 sys.path.insert(0, str(Path(__file__).parent))
+
+
+@pytest.fixture(scope="session")
+def rotflex_csv(tmp_path_factory) -> Path:
+    """A folder with the ROTFLEX runs written as CSV (``jaxflex datasets get``); the test skips
+    where the data cannot be had (no ``JAXFLEX_DATA_DIR`` copy and no network)."""
+    from test_datasets import REAL_DATA_DIR
+
+    from jaxflex import datasets
+
+    out = tmp_path_factory.mktemp("rotflex")
+    try:
+        datasets.write("quanser_rotflex", out, REAL_DATA_DIR)
+    except datasets.DataUnavailable as err:
+        pytest.skip(f"real-rig data unavailable: JAXFLEX_DATA_DIR unset and no network ({err})")
+    return out

@@ -61,7 +61,7 @@ def test_validate_help_states_the_default_window():
     from jaxflex.comparison import DEFAULT_T_END
 
     help_text = " ".join(command_parser("validate").format_help().split())
-    assert f"(default: {DEFAULT_T_END:g} s)" in help_text
+    assert f"(default: {DEFAULT_T_END:g} s for records of the simulator's outputs" in help_text
 
 
 def test_identify_into_a_file_writes_a_line_per_stage_and_no_bar(monkeypatch, tmp_path,

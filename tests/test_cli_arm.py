@@ -2,22 +2,9 @@
 
 import json
 
-import pytest
 from test_arm import ARMS
-from test_datasets import REAL_DATA_DIR
 
-from jaxflex import datasets
 from jaxflex.cli import main
-
-
-@pytest.fixture(scope="module")
-def rotflex_csv(tmp_path_factory):
-    out = tmp_path_factory.mktemp("rotflex")
-    try:
-        datasets.write("quanser_rotflex", out, REAL_DATA_DIR)
-    except datasets.DataUnavailable as err:
-        pytest.skip(f"real-rig data unavailable: JAXFLEX_DATA_DIR unset and no network ({err})")
-    return out
 
 
 def test_identify_with_an_arm_then_validate_every_record(rotflex_csv, tmp_path, capsys):

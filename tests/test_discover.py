@@ -18,6 +18,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 import scipy.stats as st
+from discovery_cases import NOISE, START, TRUTH, hidden, one
 
 from jaxflex.cli import main
 from jaxflex.data import save_record
@@ -41,14 +42,8 @@ from jaxflex.model import Model
 from jaxflex.parameters import ParameterSpec
 from jaxflex.sensors import Encoder, StrainGauge
 from jaxflex.simulation import simulate
-from jaxflex.synthetic import ACCELEROMETER_SIGMA, ENCODER_STEP, make_records
+from jaxflex.synthetic import ACCELEROMETER_SIGMA, make_records
 
-#: Base parameters of the "real" arm: every one away from the paper's value.
-TRUTH = {"E": 5.2e10, "J_h": 0.0062, "b_v": 1.2e-3, "tau_c": 0.09, "alpha": 1.3, "beta": 9e-5}
-#: Where the loop starts: 3 % off the truth (a fit of the base model would be near there).
-START = {k: v * (1.03 if i % 2 else 0.97) for i, (k, v) in enumerate(TRUTH.items())}
-NOISE = {"joint_angle": NoiseLevel.quantised(ENCODER_STEP),
-         "tip_acceleration": NoiseLevel(ACCELEROMETER_SIGMA)}
 MODERATE = {"payload": 0.025, "delay": 0.004, "motor_lag": 0.006, "gravity": 0.06,
             "root_compliance": 0.02, "stribeck": 0.04}
 
@@ -79,24 +74,6 @@ class StickyPatch(Effect):
     def load_amplitudes(self, params, angle, velocity):
         inside = 0.5 * (1.0 + jnp.tanh((angle - math.radians(45.0)) / 0.02))
         return (-params["tau_p"] * inside * jnp.tanh(velocity / 0.01))[None]
-
-
-def hidden(effects: dict, seed: int = 0, inputs=("triangular", "pulse", "half_sine"),
-           amplitudes=None):
-    """Noisy records of the truth with ``effects`` (effect or name → {param: value}), the true
-    model and parameters."""
-    instances = [get_effect(e) if isinstance(e, str) else e for e in effects]
-    model = Model().with_effects(*instances)
-    params = dict(TRUTH)
-    for values in effects.values():
-        params.update(values)
-    records = make_records(model, params, inputs=inputs, seed=seed, amplitudes=amplitudes)
-    return records, model, params
-
-
-def one(name: str, value: float, **kwargs):
-    effect = get_effect(name)
-    return hidden({effect: {effect.parameters[0].name: value}}, **kwargs)
 
 
 def noise_floor(records, model, params) -> dict[str, float]:
@@ -286,7 +263,10 @@ def test_discover_adds_the_hidden_payload(payload_case):
     base, final = report.base, report.final
     assert final.bic < base.bic and final.holdout["relative_error"]["tip_acceleration"] < 0.05
     assert base.ranking[0].effect == "payload" and "m_p = 30 g" in base.ranking[0].explanation
-    assert "Hz" in base.ranking[0].explanation
+    assert base.ranking[0].status == "explains" and "explains" in base.ranking[0].explanation
+    shift = base.ranking[0].evidence["resonance"]  # cited only beyond the frequency resolution
+    assert ("Hz too high" in base.ranking[0].explanation) == (
+        shift["shift_hz"] > shift["resolution_hz"]), base.ranking[0].explanation
 
     data = json.loads(json.dumps(report.to_dict()))
     assert [s["added"] for s in data["steps"]] == [None, None, "payload"]

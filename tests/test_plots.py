@@ -46,7 +46,7 @@ def test_time_figure_png_has_size_and_content(comparison, tmp_path):
     assert isinstance(fig, Figure)
     path = save_figure(fig, tmp_path / "time.png")
     assert_image(path, 480, 400)
-    labels = [ax.get_ylabel() for ax in fig.axes]
+    labels = [ax.get_ylabel().replace("\n", " ") for ax in fig.axes]  # unit on a 2nd line
     assert labels == [
         "joint angle (rad)",
         "residual (rad)",

@@ -8,9 +8,7 @@ import numpy as np
 import pytest
 from scipy.ndimage import maximum_filter1d, minimum_filter1d
 from test_arm import ARMS
-from test_datasets import REAL_DATA_DIR
 
-from jaxflex import datasets
 from jaxflex.arm import load_arm
 from jaxflex.data import Record, load_record
 from jaxflex.rest import (
@@ -290,13 +288,8 @@ def test_a_longer_span_moves_the_start_back():
 
 
 @pytest.fixture(scope="module")
-def rotflex(tmp_path_factory):
-    out = tmp_path_factory.mktemp("rotflex")
-    try:
-        datasets.write("quanser_rotflex", out, REAL_DATA_DIR)
-    except datasets.DataUnavailable as err:
-        pytest.skip(f"real-rig data unavailable: JAXFLEX_DATA_DIR unset and no network ({err})")
-    records = {p.stem: load_record(p) for p in out.glob("*.csv")}
+def rotflex(rotflex_csv):
+    records = {p.stem: load_record(p) for p in rotflex_csv.glob("*.csv")}
     return records, load_arm(ARMS / "quanser_rotflex.toml")
 
 

@@ -32,10 +32,10 @@ from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
 from jaxflex.cli import UsageError
-from jaxflex.rest import REST_SPAN, RestBand, find_rest
 
 if TYPE_CHECKING:
     from jaxflex.data import Record
+    from jaxflex.rest import RestBand
 
 AUTO = "auto"
 """The window text that finds the rest start (:func:`jaxflex.rest.find_rest`)."""
@@ -127,11 +127,14 @@ def resolve_window(
     window: Window | None,
     record: Record,
     bands: Mapping[str, float | RestBand],
-    span: float = REST_SPAN,
+    span: float | None = None,
 ) -> tuple[float, float] | None:
     """The ``(t0, t1)`` to cut ``record`` to (None: all of it): ``window`` checked against the
     record (:func:`check_window`), or, for ``auto``, from the rest that ``bands`` (rest
-    tolerances by channel, :func:`jaxflex.rest.rest_bands`) and ``span`` find, to its end."""
+    tolerances by channel, :func:`jaxflex.rest.rest_bands`) and ``span`` (default
+    :data:`jaxflex.rest.REST_SPAN`) find, to its end."""
+    from jaxflex.rest import REST_SPAN, find_rest
+
     if window is None:
         return None
     t_start, t_end = float(record.time[0]), float(record.time[-1])
@@ -140,7 +143,8 @@ def resolve_window(
     try:
         t0 = find_rest(
             record.time, {c: record.channel(c) for c in bands}, bands,
-            record.channel(record.input_name), span, name=record.name,
+            record.channel(record.input_name), REST_SPAN if span is None else span,
+            name=record.name,
         )
     except ValueError as err:
         message = str(err).replace("window=(t0, t1)", f"--window {_echo(record.name)}=T0:T1")

@@ -20,15 +20,26 @@ LINK_OUTPUTS: tuple[str, ...] = ("tip_acceleration", "root_strain", "tip_deflect
 
 @dataclass(frozen=True)
 class ResonanceShift:
-    """A resonance seen in the measurement and the model's nearest one."""
+    """A resonance seen in the measurement and the model's nearest one.
+
+    ``resolution_hz`` is the frequency resolution of the records, ``1/T`` for the shortest
+    record of duration ``T``: two peaks closer than it cannot be told apart, so a shift
+    smaller than it is no evidence that the model resonates elsewhere (:attr:`significant`).
+    """
 
     measured_hz: float
     model_hz: float
+    resolution_hz: float = 0.0
 
     @property
     def shift_hz(self) -> float:
         """``model − measured``: positive when the model resonates too high."""
         return self.model_hz - self.measured_hz
+
+    @property
+    def significant(self) -> bool:
+        """True if the shift exceeds the frequency resolution: the model resonates elsewhere."""
+        return abs(self.shift_hz) > self.resolution_hz
 
 
 @dataclass(frozen=True)
@@ -131,7 +142,9 @@ def frf_error(
     f_lo = 1.5 / (records[0].n_samples * dt)  # below ~1.5 bins there is no resonance to see
     measured_peaks = _spectral_peaks(freqs, syy_meas, f_lo, f_peaks_max, max_peaks=6)
     model_peaks = _spectral_peaks(freqs, syy_model, f_lo, f_peaks_max, max_peaks=6)
-    resonances = _pair_peaks(measured_peaks, model_peaks)
+    resolution = 1.0 / (min(r.n_samples for r in records) * dt)
+    resonances = tuple(ResonanceShift(r.measured_hz, r.model_hz, resolution)
+                       for r in _pair_peaks(measured_peaks, model_peaks))
     edges = [0.0]
     inside = [f for f in measured_peaks if f < f_max]
     edges += [0.5 * (a + b) for a, b in zip(inside[:-1], inside[1:], strict=True)]

@@ -57,6 +57,11 @@ class Localisation:
         return max(self.windows, key=lambda c: c.concentration)
 
 
+def _degrees(radians: float) -> str:
+    """Whole degrees, with no "-0" for a bin edge just below zero."""
+    return f"{int(round(math.degrees(radians))) + 0}"
+
+
 def _masks(record: Record, velocity: np.ndarray, v_zero: float, n_angle_bins: int, reversal_s):
     """Boolean masks of the operating conditions of one record."""
     torque_on = np.abs(record.input) > 1e-3 * max(np.max(np.abs(record.input)), 1e-300)
@@ -139,7 +144,7 @@ def localise(
         m = _masks(rec, vel, v_zero, n_angle_bins, reversal_s)
         for j in range(n_angle_bins):
             lo, hi = angle_edges[j], angle_edges[j + 1]
-            name = f"angle {np.degrees(lo):.0f} to {np.degrees(hi):.0f} deg"
+            name = f"angle {_degrees(lo)} to {_degrees(hi)} deg"
             upper = theta <= hi if j == n_angle_bins - 1 else theta < hi
             m[name] = (theta >= lo) & upper
         t = rec.time - rec.time[0]

@@ -42,7 +42,12 @@ QUANTISED_EXCESS_LIMIT = 0.25
 
 @dataclass(frozen=True)
 class ChannelDiagnosis:
-    """Everything about one output channel's residuals, pooled over the records."""
+    """Everything about one output channel's residuals, pooled over the records.
+
+    ``rate_correlation`` is the model's own output rate (its time derivative) correlated with
+    the input: a late torque leaves a residual ``≈ −d·ẏ``, so a residual–input correlation of
+    the opposite sign at the same lag is what a delay would leave.
+    """
 
     channel: str
     nrmse: float  # percent, mean over records
@@ -53,6 +58,7 @@ class ChannelDiagnosis:
     input_correlation: CrossCorrelation
     spectrum: ResidualSpectrum
     beyond_quantisation: float | None  # RMS of (|r| − q/2)⁺ in steps q; quantised channels only
+    rate_correlation: CrossCorrelation | None = None  # the model's output rate vs the input
 
     @property
     def rms_ratio(self) -> float:
@@ -169,9 +175,11 @@ class Diagnosis:
                          f"{self.frf.nrmse:.3g} %")
             for r in self.frf.resonances:
                 if abs(r.shift_hz) >= 0.05:
+                    where = "beyond" if r.significant else "within"
                     lines.append(
                         f"  resonance measured at {r.measured_hz:.2f} Hz, model "
-                        f"{r.model_hz:.2f} Hz ({r.shift_hz:+.2f} Hz)"
+                        f"{r.model_hz:.2f} Hz ({r.shift_hz:+.2f} Hz, {where} the "
+                        f"{r.resolution_hz:.2g} Hz resolution)"
                     )
         if self.consistent_with_noise:
             return lines
@@ -221,7 +229,8 @@ class Diagnosis:
                 "nrmse": self.frf.nrmse,
                 "bands": [vars(b) for b in self.frf.bands],
                 "resonances": [
-                    {"measured_hz": r.measured_hz, "model_hz": r.model_hz, "shift_hz": r.shift_hz}
+                    {"measured_hz": r.measured_hz, "model_hz": r.model_hz, "shift_hz": r.shift_hz,
+                     "resolution_hz": r.resolution_hz, "significant": r.significant}
                     for r in self.frf.resonances
                 ],
             }
@@ -337,6 +346,10 @@ def diagnose(
             ),
             spectrum=residual_spectrum(res, dt, noise_sigma=level.sigma),
             beyond_quantisation=beyond,
+            rate_correlation=cross_correlation(
+                [np.gradient(p[c], dt) for p in preds], [r.input for r in records],
+                max_lag=min(200, records[0].n_samples // 4), dt=dt,
+            ),
         )
     velocities = [p.get("joint_velocity") for p in preds]
     # a record without an encoder is localised along the model's joint angle

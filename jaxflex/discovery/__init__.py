@@ -55,6 +55,12 @@ The loop (:func:`discover`)
     withdrawn, and whatever the residuals still hold is reported as ``unexplained`` — where in
     time and frequency, and how large.
 
+Claims
+    What the report says about each candidate (explains, withdrawn, not added and why, the
+    ranking's order, the evidence cited) follows one stated rule per claim on named statistics:
+    :data:`~jaxflex.discovery.explain.RULES`, listed in the documentation's *Physical effects*
+    page.
+
 Channels
     The records may measure any of the simulator's outputs or the rig's sensor channels
     (``channels=``, as in ``identify``; by default the rig's sensors that every record holds:
@@ -66,7 +72,7 @@ Channels
 
 from jaxflex.discovery.candidates import Candidate, candidate_set, default_candidates
 from jaxflex.discovery.example import load_example
-from jaxflex.discovery.explain import explain
+from jaxflex.discovery.explain import RULES
 from jaxflex.discovery.loop import discover
 from jaxflex.discovery.operations import add_effect, refit, score_tests
 from jaxflex.discovery.report import Confirmation, DiscoveryFit, DiscoveryReport, Step
@@ -85,7 +91,7 @@ __all__ = [
     "default_candidates",
     "refit",
     "discover",
-    "explain",
+    "RULES",
     "load_example",
     "score_tests",
 ]

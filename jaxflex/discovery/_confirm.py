@@ -66,16 +66,19 @@ def confirm(engine: Engine, x: np.ndarray, cost: float, active: Sequence[int],
     unit = np.asarray(sub.to_unit(sub.from_vector(x1[u.index(u.slots[slot].names)])))
     p = lr_test(lr, specs)
     delta_bic = len(specs) * math.log(engine.n_samples) - lr
+    at_null = bool(np.all(unit < BOUND_TOL))
     conf = Confirmation(
         effect=u.candidates[candidate].name,
         lr=lr,
         p_value=p,
         delta_bic=delta_bic,
         explained=lr / max(cost - engine.noise_cost, 1e-12),
-        confirmed=bool(p < level and delta_bic < 0 and not np.all(unit < BOUND_TOL)),
+        confirmed=bool(p < level and delta_bic < 0 and not at_null),
         params=u.params(x1, list(active) + [slot]),
         member=u.slots[slot].member,
         setting=u.candidates[candidate].label(u.slots[slot].member),
+        level=level,
+        at_null=at_null,
     )
     return conf, slot, x1, cost1
 

@@ -24,8 +24,8 @@ from jaxflex.diagnosis import (
 )
 from jaxflex.discovery._confirm import confirm, profile_scan
 from jaxflex.discovery._engine import Engine
-from jaxflex.discovery.candidates import Candidate, candidate_set, parameter_names
-from jaxflex.discovery.explain import explain
+from jaxflex.discovery.candidates import Candidate, candidate_set
+from jaxflex.discovery.explain import annotate, collect_evidence, ranking_key
 from jaxflex.discovery.operations import full_params
 from jaxflex.discovery.report import Confirmation, DiscoveryFit, DiscoveryReport, Step
 from jaxflex.discovery.scores import ALPHA, ScoreResult
@@ -295,20 +295,27 @@ def discover(
             top = max((r.statistic for r in ranking), default=0.0)
             contenders = [r for r in ranking
                           if r.significant and r.statistic >= CONFIRM_RATIO * top]
+            skipped = {r.effect: "ratio" for r in ranking if r.significant} | {
+                r.effect: "full" for r in contenders}
             starts: dict[str, tuple[int, np.ndarray]] = {}
             if not contenders and not diag.consistent_with_noise:
                 ranking, starts = profile_scan(engine, x, active, ranking, alpha / m)
                 contenders = sorted((r for r in ranking if r.profile_drop is not None
                                      and r.profile_p_value < alpha / m),
                                     key=lambda r: -r.profile_drop)
+                skipped = {r.effect: "full" for r in contenders}
             for r in contenders[:max_confirm]:
                 conf, slot, x1, cost1 = confirm(engine, x, cost, active,
                                                 names.index(r.effect), r.estimate, alpha / m,
                                                 starts.get(r.effect))
+                if holdout is not None:
+                    conf = dataclasses.replace(conf, holdout_error=_holdout_error(
+                        engine, x1, holdout, channels, t_end))
                 confirmations.append(conf)
                 if conf.confirmed and (best is None or conf.lr > best[0].lr):
                     best = (conf, slot, x1, cost1)
-            ranking = _final_ranking(ranking, confirmations, u.candidates, diag)
+            ranking = _final_ranking(ranking, confirmations, u.candidates, diag, alpha / m,
+                                     _mean_error(held), skipped)
         steps.append(Step(
             added=added.get("name"), fit=engine.discovery_fit(x, active, cost), nrmse=nrmse,
             frf_nrmse=frf, holdout=held, diagnosis=diag, ranking=tuple(ranking),
@@ -326,6 +333,7 @@ def discover(
                  "explained": conf.explained}
 
     steps, withdrawn = _withdraw(steps)
+    steps = annotate(steps, withdrawn, MIN_EXPLAINED)
     unexplained = steps[-1].diagnosis.unexplained()
     if unexplained is not None:
         if steps[-1].ranking or withdrawn:
@@ -364,9 +372,13 @@ def discover(
 
 
 def _final_ranking(ranking: Sequence[ScoreResult], confirmations: Sequence[Confirmation],
-                   cands: Sequence[Candidate], diag: Diagnosis) -> list[ScoreResult]:
-    """The ranking after the refits: confirmed candidates by their likelihood ratio, then the
-    others by their score; each with its explanation (refit values where refitted)."""
+                   cands: Sequence[Candidate], diag: Diagnosis, level: float,
+                   holdout_error: float | None, skipped: Mapping[str, str]
+                   ) -> list[ScoreResult]:
+    """The ranking after the refits, in the order of
+    :func:`~jaxflex.discovery.explain.ranking_key` (confirmed candidates by their likelihood
+    ratio, then the others by their score test's p-value), each with its evidence (refit values
+    where refitted)."""
     names = [c.name for c in cands]
     refits = {c.effect: c for c in confirmations}
     out = []
@@ -374,13 +386,29 @@ def _final_ranking(ranking: Sequence[ScoreResult], confirmations: Sequence[Confi
         cand = cands[names.index(r.effect)]
         conf = refits.get(r.effect)
         member = conf.member if conf else r.member
-        fitted = {n: conf.params[n] for n in parameter_names(cand)} if conf else None
         if conf and conf.member != r.member:
             r = dataclasses.replace(r, setting=conf.setting, member=member)
-        out.append(dataclasses.replace(
-            r, explanation=explain(r, cand.effects[member], diag, fitted)))
-    confirmed = {c.effect: c.lr for c in confirmations if c.confirmed}
-    return sorted(out, key=lambda r: (r.effect not in confirmed, -confirmed.get(r.effect, 0.0)))
+        out.append(dataclasses.replace(r, evidence=collect_evidence(
+            r, cand.effects[member], diag, conf, level=level, holdout_error=holdout_error,
+            skipped=None if conf else skipped.get(r.effect))))
+    return sorted(out, key=ranking_key)
+
+
+def _mean_error(held: Mapping[str, Any] | None) -> float | None:
+    """The held-out relative error, the mean over the channels (``None``: no held-out records)."""
+    if held is None:
+        return None
+    return float(np.mean(list(held["relative_error"].values())))
+
+
+def _holdout_error(engine: Engine, x: np.ndarray, holdout: Dataset, channels: Sequence[str],
+                   t_end: float | None) -> float:
+    """The held-out relative error of the fit ``x``, the mean over the channels."""
+    preds = engine.predictions(x, holdout)
+    rows = [compare_record(r, p, "held-out", t_end, FRFSettings(), None, None, channels)
+            for r, p in zip(holdout, preds, strict=True)]
+    return float(np.mean([np.nanmean([row.relative_error[o] for row in rows])
+                          for o in channels]))
 
 
 def _withdraw(steps: list[Step]) -> tuple[list[Step], list[str]]:
@@ -404,8 +432,7 @@ def _predicts_better(before: Step, after: Step) -> bool:
     counts alike, whatever its unit, as in the identification objective)."""
     if before.holdout is None or after.holdout is None:
         return False
-    old, new = before.holdout["relative_error"], after.holdout["relative_error"]
-    return float(np.mean(list(new.values()))) < float(np.mean(list(old.values())))
+    return _mean_error(after.holdout) < _mean_error(before.holdout)
 
 
 __all__ = [

@@ -13,6 +13,7 @@ from jaxflex.diagnosis import (
     NoiseLevel,
 )
 from jaxflex.diagnosis.noise import UNITS
+from jaxflex.discovery.explain import RULES, ranking_line
 from jaxflex.discovery.scores import ScoreResult
 from jaxflex.model import Model
 from jaxflex.simulation import Outputs
@@ -53,6 +54,9 @@ class Confirmation:
     ``lr = C₀ − C₁`` (the drop of ``−2 log L``), ``p_value`` its p-value (one parameter on a
     boundary: ``½ P(χ²₁ > lr)``), ``delta_bic`` the BIC change, ``explained`` the share of the
     misfit above the noise it removed; ``member`` the profile member refitted (``setting``).
+    ``level`` is the level the LR test was judged at, ``at_null`` whether the effect's parameters
+    ended on their null-side bound, ``holdout_error`` the held-out relative error of the refit
+    (the mean over the channels; ``None`` without held-out records).
     """
 
     effect: str
@@ -64,6 +68,9 @@ class Confirmation:
     params: dict[str, float]
     member: int = 0
     setting: str = ""
+    level: float = math.nan
+    at_null: bool = False
+    holdout_error: float | None = None
 
 
 @dataclass(frozen=True)
@@ -189,15 +196,12 @@ class DiscoveryReport:
                          f"({level.describe()})")
         for s in self.steps:
             if s.ranking:
-                top = ", ".join(
-                    f"{r.effect} (S={r.statistic:.3g}, p={r.p_value:.2g}"
-                    + (f", profile drop {r.profile_drop:.3g}" if r.profile_drop else "") + ")"
-                    for r in s.ranking[:3])
-                lines.append(f"after '{s.structure}': top candidates {top}")
+                lines.append(ranking_line(s.structure, s.ranking))
         if self.withdrawn:
-            held = " nor lower the held-out error" if self.holdout is not None else ""
-            lines.append(f"withdrawn (did not explain the misfit{held}): "
-                         f"{', '.join(self.withdrawn)}")
+            held = " and did not lower the held-out error" if self.holdout is not None else ""
+            share = 100 * self.settings.get("min_explained", 0.9)
+            lines.append(f"withdrawn (removed less than {share:.0f} % of the misfit above the "
+                         f"noise{held}): {', '.join(self.withdrawn)}")
         if self.unexplained:
             lines.append(f"UNEXPLAINED: {self.unexplained['message']}")
         else:
@@ -205,7 +209,8 @@ class DiscoveryReport:
         return "\n".join(lines) + "\n"
 
     def explanations(self) -> list[str]:
-        """Plain-language explanation of every added effect and the top-ranked candidates."""
+        """The claims on each step's first three candidates, the added effect first (see
+        :mod:`jaxflex.discovery.explain`: one rule per claim)."""
         lines = []
         for s in self.steps:
             for r in s.ranking[:3]:
@@ -220,6 +225,7 @@ class DiscoveryReport:
             "ranking": [[r.to_dict() for r in s.ranking] for s in self.steps if s.ranking],
             "unexplained": self.unexplained,
             "withdrawn": list(self.withdrawn),
+            "claim_rules": {r.name: r.when for r in RULES.values()},
             "noise_floor": self.noise_floor,
             "settings": self.settings,
             "timing": {"wall_time_s": self.wall_time},  # times only here: the rest reproduces

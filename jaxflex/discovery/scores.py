@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
@@ -31,6 +31,10 @@ class ScoreResult:
     estimate ``β̂`` of the candidate's parameters (physical units, from the null) and ``setting``
     the profile member it came from (e.g. ``"v_s=0.1"``). ``profile_drop`` and its p-value are
     set when the loop scanned the candidate's nonlinear profile (see :func:`profile_scan`).
+
+    In a report, ``evidence`` holds the candidate's named statistics at its step, ``status``
+    what happened to it, ``claims`` the sentences the rules of :mod:`jaxflex.discovery.explain`
+    allow on them (``explanation`` joins them) and ``rank`` its place in the step's ranking.
     """
 
     effect: str
@@ -49,6 +53,10 @@ class ScoreResult:
     explanation: str = ""
     profile_drop: float | None = None
     profile_p_value: float | None = None
+    evidence: dict[str, Any] = field(default_factory=dict, compare=False)
+    status: str = ""
+    claims: tuple[dict[str, str], ...] = ()
+    rank: int = 0
 
     def to_dict(self) -> dict[str, Any]:
         return {
@@ -62,6 +70,10 @@ class ScoreResult:
             "significant": self.significant,
             "profile_drop": self.profile_drop,
             "profile_p_value": self.profile_p_value,
+            "rank": self.rank,
+            "status": self.status,
+            "evidence": self.evidence,
+            "claims": list(self.claims),
             "explanation": self.explanation,
         }
 

@@ -91,13 +91,14 @@ def plot_time(
         )
         ax.plot(t, measured, color=MEASURED, lw=1.0, label="measured")
         ax.plot(t, model, color=MODEL, lw=1.3, ls="--", label=model_label)
-        ax.set_ylabel(f"{label} ({unit})")
+        ax.set_ylabel(f"{label}\n({unit})")
         ax.legend(loc="best", fontsize="small", frameon=False)
         ax_res.plot(t, measured - model, color=RESIDUAL, lw=0.8)
         ax_res.axhline(0.0, color="0.5", lw=0.6)
-        ax_res.set_ylabel(f"residual ({unit})")
+        ax_res.set_ylabel(f"residual\n({unit})")
     axes[-1, 0].set_xlabel("time (s)")
     axes[-1, 0].set_xlim(t[0], t[-1])
+    fig.align_ylabels(axes[:, 0])  # one column of labels, clear of every axes' tick labels
     role = f" ({row.role})" if row is not None else ""
     fig.suptitle(title or f"{record.name}{role}: measured vs model")
     return fig
@@ -119,10 +120,9 @@ def plot_frf(
     ``source`` is a comparison (``which``: one record, several, or ``None`` for all) or a single
     :class:`~jaxflex.comparison.FRF`. Measured bins used by the FRF NRMSE are dots, bins left out
     (low input power or coherence) faint crosses; the model is a line over the compared bins.
-    The model's resonances
-    (``resonances_hz``, default: the comparison's) are dashed vertical lines labelled in Hz,
-    the measured FRF peaks triangles. The frequency axis runs to ``f_max`` (default: the
-    comparison's band, 15 Hz).
+    The model's resonances (``resonances_hz``, default: the comparison's) are dashed vertical
+    lines labelled in Hz, the measured FRF's prominent peaks triangles (one legend entry for
+    all records). The frequency axis runs to ``f_max`` (default: the comparison's band, 15 Hz).
     """
     path = ("torque", "tip_acceleration", {"torque": "N m", "tip_acceleration": "m s⁻²"})
     if isinstance(source, Comparison):
@@ -151,6 +151,7 @@ def plot_frf(
     ax_mag, ax_phase = axes[0, 0], axes[1, 0]
     single = len(curves) == 1
     shown_db = []
+    peak_label = "measured peak"
     for i, (name, frf, peaks) in enumerate(curves):
         show = (frf.freqs > 0) & (frf.freqs <= f_max) & np.isfinite(frf.measured)
         used, left_out = show & frf.compared, show & ~frf.compared
@@ -183,8 +184,9 @@ def plot_frf(
                 "v",
                 color=colour_meas,
                 ms=6,
-                label="measured peak" if single else None,
+                label=peak_label,
             )
+            peak_label = None  # one legend entry for every record's peaks
         shown_db += [meas_db[used], model_db[used]]
 
     for k, f_res in enumerate(r for r in resonances if r <= f_max):

@@ -28,6 +28,7 @@ from jaxflex.diagnosis import (
     Localisation,
     ResidualSpectrum,
 )
+from jaxflex.discovery.explain import noise_claim
 from jaxflex.plots._style import MARK, MEASURED, MODEL, RESIDUAL, figure_axes, new_figure, style
 
 _LABELS = {"joint_angle": "joint angle", "tip_acceleration": "tip acceleration",
@@ -36,6 +37,11 @@ _LABELS = {"joint_angle": "joint angle", "tip_acceleration": "tip acceleration",
 _COLOURS = {"joint_angle": MODEL, "tip_acceleration": RESIDUAL, "root_strain": "tab:purple",
             "tip_deflection": "tab:brown", "joint_velocity": "tab:olive"}
 _AFTER = "tab:green"
+
+
+def _label(name: str) -> str:
+    """A channel's name in words (``deflection_angle`` → ``deflection angle``)."""
+    return _LABELS.get(name, name.replace("_", " "))
 
 
 def plot_autocorrelation(acf: Autocorrelation, ax: Axes | None = None, title: str = "") -> Figure:
@@ -48,9 +54,9 @@ def plot_autocorrelation(acf: Autocorrelation, ax: Axes | None = None, title: st
     ax.axhline(0.0, color="0.4", lw=0.8)
     ax.set_xlabel("lag (ms)")
     ax.set_ylabel("autocorrelation")
-    ax.set_title(f"{title} Ljung-Box Q = {acf.statistic:.3g}, p = {acf.p_value:.2g}".strip(),
-                 fontsize="medium")
-    ax.legend(loc="upper right", fontsize="small", frameon=False)
+    test = f"Ljung-Box Q = {acf.statistic:.3g}, p = {acf.p_value:.2g}"
+    ax.set_title(f"{title}\n{test}" if title else test, fontsize="medium")
+    ax.legend(loc="best", fontsize="small", frameon=False)
     return fig
 
 
@@ -68,7 +74,7 @@ def plot_cross_correlation(
     ax.set_xlabel("lag (ms): residual after torque →")
     ax.set_ylabel("cross-correlation")
     ax.set_title(title or "residual vs torque", fontsize="medium")
-    ax.legend(loc="upper right", fontsize="small", frameon=False)
+    ax.legend(loc="best", fontsize="small", frameon=False)
     return fig
 
 
@@ -79,22 +85,24 @@ def plot_spectrum(
     f_max: float | None = 120.0,
     unit: str = "",
 ) -> Figure:
-    """Residual PSD (log scale) with the white-noise floor and the peaks above it labelled."""
+    """Residual PSD (log scale) with the white-noise floor; the peaks above it are marked and
+    their frequencies listed in the legend."""
     fig, ax = figure_axes(ax)
     sel = spectrum.freqs > 0
     if f_max is not None:
         sel &= spectrum.freqs <= f_max
     ax.semilogy(spectrum.freqs[sel], spectrum.psd[sel], color=RESIDUAL, lw=1.0, label="residual")
     ax.axhline(spectrum.noise_psd, color="0.3", ls="--", lw=1.0, label="noise floor")
-    for f in spectrum.peaks_hz:
-        if f_max is None or f <= f_max:
-            k = int(np.argmin(np.abs(spectrum.freqs - f)))
-            ax.annotate(f"{f:.1f} Hz", (f, spectrum.psd[k]), textcoords="offset points",
-                        xytext=(3, 4), fontsize="x-small", color=MARK)
+    peaks = sorted(f for f in spectrum.peaks_hz if f_max is None or f <= f_max)
+    if peaks:  # marked on the curve, their frequencies in the legend: labels never collide
+        at = [spectrum.psd[int(np.argmin(np.abs(spectrum.freqs - f)))] for f in peaks]
+        ax.plot(peaks, np.asarray(at) * 1.6, "v", color=MARK, ms=5,
+                label="peaks " + ", ".join(f"{f:.1f}" for f in peaks) + " Hz")
     ax.set_xlabel("frequency (Hz)")
-    ax.set_ylabel(f"PSD ({unit}²/Hz)" if unit else "PSD")
+    squared = f"({unit})²" if any(c in unit for c in "/^ ·") else f"{unit}²"
+    ax.set_ylabel(f"PSD ({squared}/Hz)" if unit else "PSD")
     ax.set_title(title or "residual spectrum", fontsize="medium")
-    ax.legend(loc="upper right", fontsize="small", frameon=False)
+    ax.legend(loc="best", fontsize="small", frameon=False)
     return fig
 
 
@@ -113,24 +121,32 @@ def plot_localisation(loc: Localisation, ax: Axes | None = None, title: str = ""
     ax.barh(y, values, color=colours)
     ax.axvline(1.0, color="0.3", ls="--", lw=1.0)
     ax.set_yticks(y, names, fontsize="x-small")
-    ax.set_xlabel("misfit concentration (share of misfit / share of time)")
+    ax.set_xlabel("misfit concentration\n(share of misfit / share of time)")
     ax.set_title(title or "where the misfit lies", fontsize="medium")
     return fig
 
 
-def plot_diagnosis(diagnosis: Diagnosis, *, figsize=(13.0, 9.0), dpi: float = 100.0) -> Figure:
-    """One page: per channel the autocorrelation, cross-correlation and spectrum; localisation."""
+def plot_diagnosis(diagnosis: Diagnosis, *, figsize=(13.0, 9.0), dpi: float = 100.0,
+                   units: Mapping[str, str] | None = None) -> Figure:
+    """One page: per channel the autocorrelation, cross-correlation and spectrum; localisation.
+    ``units`` (channel → unit) label the residual spectra's axes."""
+    units = dict(units or {})
     channels = list(diagnosis.channels)
     fig = Figure(figsize=figsize, dpi=dpi, layout="constrained")
     grid = fig.add_gridspec(len(channels), 4)
     for row, name in enumerate(channels):
         c = diagnosis.channels[name]
-        label = _LABELS.get(name, name)
-        status = "consistent with noise" if c.consistent(diagnosis.alpha) else "misfit"
+        label = _label(name)
+        _, verdict, statistic = noise_claim(c, diagnosis.alpha)
         axes = [style(fig.add_subplot(grid[row, k])) for k in range(3)]
-        plot_autocorrelation(c.whiteness, axes[0], title=f"{label}:")
+        plot_autocorrelation(c.whiteness, axes[0], title=f"{label}: whiteness")
+        if c.noise.kind != "white":  # a quantised channel's noise test is not Ljung-Box
+            axes[0].set_title(axes[0].get_title() + "\n(quantised: not its noise test)",
+                              fontsize="small")
         plot_cross_correlation(c.input_correlation, axes[1], title=f"{label} vs torque")
-        plot_spectrum(c.spectrum, axes[2], title=f"{label} ({status})")
+        plot_spectrum(c.spectrum, axes[2], title=f"{label}: {verdict}\n{statistic}",
+                      unit=units.get(name, ""))
+        axes[2].title.set_fontsize("small")
     ax = style(fig.add_subplot(grid[:, 3]))
     plot_localisation(diagnosis.localisation, ax)
     return fig
@@ -160,15 +176,15 @@ def plot_error_falling(
         if len(values) != len(labels):
             raise ValueError(f"nrmse[{name!r}] has {len(values)} values for {len(labels)} steps")
         colour = _COLOURS.get(name, MARK)
-        ax.semilogy(x, values, "o-", color=colour, label=f"{_LABELS.get(name, name)} NRMSE")
+        ax.semilogy(x, values, "o-", color=colour, label=f"{_label(name)} NRMSE")
         if noise_floor and name in noise_floor:
             ax.axhline(noise_floor[name], color=colour, ls="--", lw=1.0,
-                       label=f"{_LABELS.get(name, name)} noise floor")
+                       label=f"{_label(name)} noise floor")
     if frf_nrmse is not None:
         ax.semilogy(x, frf_nrmse, "s-", color=MARK, label="FRF NRMSE")
     for name, values in (holdout or {}).items():
         ax.semilogy(x, values, "^:", color=_COLOURS.get(name, "0.4"),
-                    label=f"held-out {_LABELS.get(name, name)} error")
+                    label=f"held-out {_label(name)} error")
     ax.set_xticks(x, labels, rotation=15)
     ax.set_ylabel("error (%)")
     ax.set_title("error as effects are added", fontsize="medium")
@@ -216,11 +232,12 @@ def plot_overlay(
             model = get(source, name)
             ax.plot(t, model, color=colour, lw=1.2, ls=ls, label=label)
             ax_res.plot(t, measured - model, color=colour, lw=0.9, label=label)
-        ax.set_ylabel(f"{_LABELS.get(name, name)} ({unit})")
+        ax.set_ylabel(f"{_label(name)}\n({unit})")
         ax.legend(loc="best", fontsize="small", frameon=False)
         ax_res.axhline(0.0, color="0.4", lw=0.6)
-        ax_res.set_ylabel(f"residual ({unit})")
+        ax_res.set_ylabel(f"residual\n({unit})")
     axes[-1, 0].set_xlabel("time (s)")
+    fig.align_ylabels(axes[:, 0])  # one column of labels, clear of every axes' tick labels
     held = f" ({role})" if role else ""
     fig.suptitle(f"{record.name}{held}: {labels[0]} vs {labels[1]}", fontsize="medium")
     return fig

@@ -2,9 +2,9 @@
 
 * :func:`plot_convergence` — best cost per generation, one thin line per run and the median of
   each method thick (the paper's convergence curves);
-* :func:`plot_intervals` — each identified parameter's interval, drawn in units of its own
-  half-width (log scale for log-scale parameters) and labelled with its value and spread, with
-  the true value where known (inside the interval ⇔ within ±1);
+* :func:`plot_intervals` — each identified parameter's interval as percent deviation from its
+  estimate on a symmetric-log axis, the robust (HAC) interval beneath it, unidentifiable
+  parameters marked as such, and the true value where known;
 * :func:`plot_fit` — both for one :class:`~jaxflex.identification.Fit`.
 
 Everything drawn is read from fits (or their histories); nothing is computed here but medians.
@@ -17,7 +17,7 @@ from collections.abc import Mapping, Sequence
 import numpy as np
 from matplotlib.axes import Axes
 from matplotlib.figure import Figure
-from matplotlib.ticker import MaxNLocator
+from matplotlib.ticker import FixedLocator, MaxNLocator, NullLocator
 
 from jaxflex.identification import Fit
 from jaxflex.plots._style import MARK, MODEL, RESIDUAL, figure_axes, new_figure
@@ -73,6 +73,41 @@ def plot_convergence(
     return fig
 
 
+def _percent(value: float, ends) -> np.ndarray:
+    """Interval ends as deviations from the estimate, in percent of it."""
+    with np.errstate(divide="ignore", invalid="ignore"):
+        return 100.0 * (np.asarray(ends, dtype=float) - value) / abs(value)
+
+
+def _spread(rel: np.ndarray) -> str:
+    """``±x %`` for a symmetric interval, ``−a/+b %`` otherwise."""
+    lo, hi = -rel[0], rel[1]
+    if np.isclose(lo, hi, rtol=0.05):
+        return f"±{_number(hi)} %"
+    return f"−{_number(lo)}/+{_number(hi)} %"
+
+
+def _number(value: float) -> str:
+    """Two significant digits, whole numbers from 100 on (no exponent below 10⁶)."""
+    return f"{value:.0f}" if 100 <= value < 1e6 else f"{value:.2g}"
+
+
+def _decade_ticks(linthresh: float, left: float, right: float, per_side: int = 3) -> list[float]:
+    """0 and ±powers of ten from ``linthresh`` out to the limits, at most ``per_side`` a side
+    (every second or third decade where more would crowd the labels)."""
+    ticks = [0.0]
+    for sign, limit in ((-1.0, -left), (1.0, right)):
+        first = int(np.floor(np.log10(linthresh)))
+        last = int(np.floor(np.log10(limit))) if limit > linthresh else first - 1
+        step = max(1, int(np.ceil((last - first + 1) / per_side)))
+        ticks += [sign * 10.0**k for k in range(last, first - 1, -step)]
+    return sorted(ticks)
+
+
+UNIDENTIFIABLE_REACH = 1e3
+"""Where the interval figure stops an unidentifiable parameter's bar (percent of the value)."""
+
+
 def plot_intervals(
     fit: Fit,
     truth: Mapping[str, float] | None = None,
@@ -82,41 +117,63 @@ def plot_intervals(
     dpi: float = 100.0,
     title: str | None = None,
 ) -> Figure:
-    """Each parameter's interval scaled to ±1, labelled with its spread; ``truth`` marked."""
+    """Each parameter's interval as percent deviation from its estimate (symmetric-log axis,
+    so ±0.01 % and ±300 % are both readable); the robust (HAC) interval thinner beneath the
+    nominal one; unidentifiable parameters marked as such; ``truth`` marked ×."""
     if not fit.intervals:
         raise ValueError("this fit has no intervals (identify(..., intervals=True) computes them)")
     fig, ax = figure_axes(ax, figsize=figsize, dpi=dpi)
     names = list(fit.intervals)
-    log = dict(zip(fit.names, fit.identifiability.get("coordinates", ()), strict=False))
-    y = np.arange(len(names))[::-1]
-    reach = 1.0
+    y = np.arange(len(names))[::-1].astype(float)
+    robust = fit.robust_intervals
+    ends, labels = [], []
     for yi, name in zip(y, names, strict=True):
         value = fit.params[name]
-        lo, hi = fit.intervals[name]
-        colour = RESIDUAL if name in fit.poorly_identifiable else MODEL
-        ax.plot([-1.0, 1.0], [yi, yi], color=colour, linewidth=3, solid_capstyle="butt")
-        ax.plot([0.0], [yi], "o", color=colour, markersize=5)
-        if log.get(name, "log") == "log" and hi / value > 1.5:
-            spread = f"×/÷ {hi / value:.3g}"
-        elif log.get(name, "log") == "log":
-            spread = f"± {100 * (hi / value - 1):.2g} %"
+        rel = _percent(value, fit.intervals[name])
+        shown = name in fit.unidentifiable or not np.all(np.isfinite(rel))
+        colour = RESIDUAL if name in fit.poorly_identifiable or shown else MODEL
+        if shown:
+            ax.annotate("", (UNIDENTIFIABLE_REACH, yi), (-100.0, yi), color=colour,
+                        arrowprops={"arrowstyle": "<->", "color": colour, "lw": 1.5})
+            labels.append(f"{name}\nnot identifiable")
         else:
-            spread = f"± {100 * (hi - value) / abs(value):.2g} %"
-        ax.annotate(f"{value:.5g}  {spread}", (1.0, yi), xytext=(6, 4),
-                    textcoords="offset points", fontsize=8, color=colour)
+            ax.plot(rel, [yi, yi], color=colour, linewidth=4, solid_capstyle="butt")
+            ends.extend(np.abs(rel))
+            text = f"{name}\n{_spread(rel)}"
+            if name in robust:
+                rob = _percent(value, robust[name])
+                rob = np.clip(np.where(np.isfinite(rob), rob, UNIDENTIFIABLE_REACH),
+                              -100.0, UNIDENTIFIABLE_REACH)
+                ax.plot(rob, [yi - 0.28, yi - 0.28], color=colour, alpha=0.45, linewidth=2,
+                        solid_capstyle="butt")
+                ends.extend(np.abs(rob))
+                text += f" (robust {_spread(rob)})"
+            labels.append(text)
+        ax.plot([0.0], [yi], "o", color=colour, markersize=5)
         if truth is not None and name in truth:
-            if log.get(name, "log") == "log":
-                where = np.log(truth[name] / value) / np.log(hi / value)
-            else:
-                where = (truth[name] - value) / (hi - value)
-            reach = max(reach, min(abs(where), 5.0) + 0.3)
-            ax.plot([np.clip(where, -5.0, 5.0)], [yi], "x", color=MARK, markersize=8, mew=2)
-    ax.set_yticks(y, [f"{n}{' (poor)' if n in fit.poorly_identifiable else ''}" for n in names])
-    ax.set_xlim(-reach - 0.2, reach + 1.2)
+            where = float(_percent(value, [truth[name]])[0])
+            ends.append(abs(where))
+            ax.plot([where], [yi], "x", color=MARK, markersize=8, mew=2)
+    finite = [e for e in ends if np.isfinite(e) and e > 0]
+    linthresh = 10.0 ** np.floor(np.log10(min(finite))) if finite else 1.0
+    reach = max(finite, default=1.0)
+    if any(t.endswith("not identifiable") for t in labels):
+        reach = max(reach, UNIDENTIFIABLE_REACH)
+    ax.set_xscale("symlog", linthresh=linthresh, linscale=1.0)
+    left, right = -min(1.5 * reach, 100.0), 1.5 * reach
+    ax.set_xlim(left, right)
+    ax.xaxis.set_major_locator(FixedLocator(_decade_ticks(linthresh, left, right)))
+    ax.xaxis.set_minor_locator(NullLocator())
+    ax.set_ylim(y.min() - 0.7, y.max() + 0.5)
+    ax.set_yticks(y, labels, fontsize=8)
     ax.axvline(0.0, color="0.6", linewidth=0.8)
-    note = "; x = true value" if truth is not None else ""
-    ax.set_xlabel(f"position in the {100 * fit.level:g} % interval (±1 = its ends{note})")
-    ax.set_title(title or f"Parameter intervals ({fit.method.upper()}, seed {fit.seed})")
+    keys = ["thin: robust"] if robust else []
+    keys += ["×: true value"] if truth is not None else []
+    key = f"\n({', '.join(keys)})" if keys else ""
+    ax.set_xlabel(f"{100 * fit.level:g} % interval, % of the estimate{key}")
+    conditional = ": conditional on the model" if fit.model_conditional else ""
+    ax.set_title(title or f"Intervals ({fit.method.upper()}, seed {fit.seed}){conditional}",
+                 fontsize=10)
     return fig
 
 
