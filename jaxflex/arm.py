@@ -36,6 +36,7 @@ line::
     calibration = "deflection_angle"
     channel = "deflection_angle"
     gain = { reference = 1.0, lower = 0.5, upper = 2.0 }   # identified (a number: fixed)
+    # reading_unit = "V"      # the logged channel's unit, where the gain converts to it
 
     [[effects]]               # optional: effects added to the base model, by name, with
     name = "payload"          # their settings (or effects = ["payload", ...])
@@ -226,13 +227,15 @@ def _effects(top: _Table) -> tuple[Effect, ...]:
     return tuple(effects)
 
 
-def _gain_effect(where: str, channel: str, bounds: tuple[float, float, float]) -> SensorGain:
-    """The ``sensor_gain`` effect that identifies a sensor's gain within its bounds."""
+def _gain_effect(where: str, sensor: Sensor, bounds: tuple[float, float, float]) -> SensorGain:
+    """The ``sensor_gain`` effect that identifies a sensor's gain within its bounds (in the
+    sensor's reading per quantity)."""
     reference, lower, upper = bounds
     try:
-        return SensorGain(channel=channel, reference=reference, lower=lower, upper=upper)
+        return SensorGain(channel=sensor.channel, reference=reference, lower=lower, upper=upper,
+                          gain_unit=sensor.gain_unit)
     except ValueError as err:
-        raise ArmError(f"{where}: sensor {channel}: {err}") from None
+        raise ArmError(f"{where}: sensor {sensor.channel}: {err}") from None
 
 
 def _offset_effect(where: str, channel: str, bounds: tuple[float, float, float]) -> SensorOffset:
@@ -491,7 +494,7 @@ def _sensors(
             raise ArmError(f"{table.where}: sensors[{i}]: {err}") from None
         _check_channel(table, sensors, drive)
         if bounds is not None:
-            calibrations.append(_gain_effect(top.where, sensors[-1].channel, bounds))
+            calibrations.append(_gain_effect(top.where, sensors[-1], bounds))
         if offset_bounds is not None:
             calibrations.append(_offset_effect(top.where, sensors[-1].channel, offset_bounds))
     return tuple(sensors), tuple(calibrations)

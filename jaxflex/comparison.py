@@ -367,7 +367,7 @@ def link_channel(model: Model, channels: Sequence[str]) -> str:
 
 def channel_units(model: Model, channels: Sequence[str]) -> dict[str, str]:
     """Each channel's unit: its sensor's, or the simulator output's."""
-    own = {s.channel: s.unit for s in model.sensors}
+    own = {s.channel: s.channel_unit for s in model.sensors}
     return {c: own.get(c, KNOWN_UNITS.get(c, "")) for c in channels}
 
 

@@ -76,7 +76,7 @@ class _Sensor(Protocol):
     channel: str
     resolution: float
     noise: float
-    unit: str
+    channel_unit: str
 
 
 def rest_band(
@@ -109,7 +109,7 @@ def rest_bands(sensors: Sequence[_Sensor], record: Record) -> dict[str, RestBand
     """The rest band of each sensor whose channel ``record`` holds, by channel."""
     return {
         s.channel: rest_band(
-            s.resolution, s.noise, float(np.ptp(record.channel(s.channel))), s.unit
+            s.resolution, s.noise, float(np.ptp(record.channel(s.channel))), s.channel_unit
         )
         for s in sensors
         if s.channel in record.columns

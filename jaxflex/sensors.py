@@ -46,7 +46,9 @@ class Sensor(eqx.Module):
     standard deviation of white measurement noise, both in the channel's units. ``rezero``:
     a record is re-zeroed at rest, which removes any offset (the default); ``False``: the
     record keeps its zero and the reading less the stated ``offset`` is fitted (an unknown
-    offset is then a ``sensor_offset`` effect to identify).
+    offset is then a ``sensor_offset`` effect to identify). ``unit`` is the physical
+    quantity's unit; ``reading_unit`` the logged channel's (``"V"``, ``"counts"``) where the
+    gain converts one to the other (default: the quantity's, gain 1 or a scale of it).
     """
 
     kind: ClassVar[str] = "sensor"
@@ -57,8 +59,12 @@ class Sensor(eqx.Module):
     noise: float = 0.0
     resolution: float = 0.0
     rezero: bool = True
+    reading_unit: str = ""
 
     def __check_init__(self) -> None:
+        if not isinstance(self.reading_unit, str):
+            raise ValueError(f"{self.kind} {self.channel}: reading_unit={self.reading_unit!r} "
+                             "must be a string (e.g. 'V')")
         if not isinstance(self.rezero, bool):
             raise ValueError(f"{self.kind} {self.channel}: rezero={self.rezero!r} must be "
                              "true or false")
@@ -72,6 +78,16 @@ class Sensor(eqx.Module):
             raise ValueError(
                 f"{self.kind} {self.channel}: gain must be non-zero, noise and resolution >= 0"
             )
+
+    @property
+    def channel_unit(self) -> str:
+        """The unit of the logged channel (and of its gain times the quantity)."""
+        return self.reading_unit or self.unit
+
+    @property
+    def gain_unit(self) -> str:
+        """The gain's unit: reading per quantity (``"1"`` where the two units are one)."""
+        return "1" if not self.reading_unit else f"{self.reading_unit} per {self.unit}"
 
     @property
     def position(self) -> float | None:

@@ -232,12 +232,14 @@ def _odd_rig() -> Model:
     along the link, an identified gain, a fixed parameter, a user's own effect, 8 modes."""
     text = (ARMS / "quanser_rotflex.toml").read_text()
     rig = arm_from_dict(tomllib.loads(text))
-    sensors = (*rig.sensors, Accelerometer(channel="acc_mid", x=0.3, gain=0.102, noise=0.01),
+    sensors = (*rig.sensors, Accelerometer(channel="acc_mid", x=0.3, gain=0.102, noise=0.01,
+                                           reading_unit="V"),
                DeflectionSensor(channel="laser", x=0.419), StrainGauge(channel="sg", x=0.2))
     return rig.replace(
         name="odd", sensors=sensors, fixed=("beta",), n_modes=8,
         effects=(_HubSpring(preload=0.25), SensorGain(channel="acc_mid", reference=0.102,
-                                                      lower=0.05, upper=0.2)),
+                                                      lower=0.05, upper=0.2,
+                                                      gain_unit="V per m/s^2")),
     )
 
 
@@ -272,3 +274,19 @@ def test_a_rig_refuses_sensors_that_read_its_input_or_time_or_lie_beyond_the_lin
         rig.replace(sensors=(Accelerometer(channel="tip", x=0.5),))
     with pytest.raises(ValueError, match=r"two sensors log the channel\(s\) \['a'\]"):
         rig.replace(sensors=(Encoder(channel="a"), Tachometer(channel="a")))
+
+
+def test_a_sensor_in_raw_units_reports_its_units(tmp_path):
+    """An accelerometer logged in volts: its channel is in V, its identified gain in V per m/s^2
+    (not '1', not m/s^2)."""
+    from jaxflex.comparison import channel_units
+
+    text = (ARMS / "reference.toml").read_text() + (
+        '\n[[sensors]]\ntype = "accelerometer"\nchannel = "acc"\nx = 0.4\nreading_unit = "V"\n'
+        'gain = { reference = 0.1, lower = 0.05, upper = 0.2 }\n')
+    path = tmp_path / "volts.toml"
+    path.write_text(text)
+    rig = load_arm(path)
+    assert channel_units(rig, ["acc"]) == {"acc": "V"}
+    assert rig.space["gain_acc"].unit == "V per m/s^2"
+    assert load_arm(path) == arm_from_dict(tomllib.loads(arm_to_toml(rig)))

@@ -90,10 +90,10 @@ def test_a_misspelt_sensor_key_suggests_the_sensor_types_own_key(tmp_path, old, 
 def test_an_unknown_sensor_key_lists_every_key_of_that_sensor_type(tmp_path):
     _refused(_arm(tmp_path, "counts_per_revolution = 4096", "colour = 4096"),
              "sensors[0].colour: unknown key; known keys: ['channel', 'counts_per_revolution', "
-             "'gain', 'noise', 'offset', 'resolution', 'rezero', 'type']")
+             "'gain', 'noise', 'offset', 'reading_unit', 'resolution', 'rezero', 'type']")
     _refused(_arm(tmp_path, "x = 0.0 ", "colour = 0.0 "),
              "sensors[1].colour: unknown key; known keys: ['calibration', 'channel', 'gain', "
-             "'noise', 'offset', 'resolution', 'rezero', 'type', 'x']")
+             "'noise', 'offset', 'reading_unit', 'resolution', 'rezero', 'type', 'x']")
 
 
 def test_a_misspelt_optional_key_of_the_link_or_simulation_suggests_it(tmp_path):

@@ -107,7 +107,7 @@ def ready_records(model: Model, records, windows: list[Window]) -> list[Record]:
         missing = [c for c in model.channels if c not in record.columns]
         cut = "" if window is None else f", {window[0]:g} to {window[1]:g} s"
         print(f"{record.name}{cut}: {record.input_name} in; "
-              + ", ".join(f"{s.channel} ({s.kind}, {s.unit or '-'})" for s in found)
+              + ", ".join(f"{s.channel} ({s.kind}, {s.channel_unit or '-'})" for s in found)
               + (f"; not logged: {', '.join(missing)}" if missing else ""))
     return ready
 

@@ -27,6 +27,7 @@ class SensorGain(ChannelEffect):
     reference: float = eqx.field(static=True, default=1.0)
     lower: float = eqx.field(static=True, default=0.5)
     upper: float = eqx.field(static=True, default=2.0)
+    gain_unit: str = eqx.field(static=True, default="1")  # reading per quantity: "V per m/s^2"
 
     key: ClassVar[str] = "sensor_gain"
     description: ClassVar[str] = (
@@ -52,7 +53,7 @@ class SensorGain(ChannelEffect):
     def spec(self) -> ParameterSpec:
         return ParameterSpec(
             f"gain_{self.channel}",
-            "1",
+            self.gain_unit,
             lower=self.lower,
             upper=self.upper,
             reference=self.reference,
