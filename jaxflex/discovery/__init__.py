@@ -70,7 +70,12 @@ Channels
     fitted.
 """
 
-from jaxflex.discovery.candidates import Candidate, candidate_set, default_candidates
+from jaxflex.discovery.candidates import (
+    Candidate,
+    candidate_set,
+    default_candidates,
+    encoder_channels,
+)
 from jaxflex.discovery.example import load_example
 from jaxflex.discovery.explain import RULES
 from jaxflex.discovery.loop import discover
@@ -80,6 +85,7 @@ from jaxflex.discovery.scores import ALPHA, ScoreResult
 
 __all__ = [
     "ALPHA",
+    "RULES",
     "Candidate",
     "Confirmation",
     "DiscoveryFit",
@@ -89,9 +95,9 @@ __all__ = [
     "add_effect",
     "candidate_set",
     "default_candidates",
-    "refit",
     "discover",
-    "RULES",
+    "encoder_channels",
     "load_example",
+    "refit",
     "score_tests",
 ]
