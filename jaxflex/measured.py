@@ -67,7 +67,9 @@ def model_record(model: Model, record: Record, window: Window = None) -> Record:
         columns[sensor.channel] = reading - zero
         _check_scale(model, record.name, sensor, columns[sensor.channel])
     found = ", ".join(s.channel for s in chosen)
-    ready = cut.with_columns(columns, note=f"sensors {found} re-zeroed at rest")
+    zeros = ", ".join(f"{s.channel} re-zeroed at rest" if s.rezero
+                      else f"{s.channel} less its offset {s.offset!r}" for s in chosen)
+    ready = cut.with_columns(columns, note=zeros)
     return ready.replace(metadata=ready.metadata | {"rig": model.name, "sensors": found})
 
 
