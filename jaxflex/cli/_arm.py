@@ -95,14 +95,15 @@ def windows_of(args: argparse.Namespace, model: Model, records) -> list[Window]:
     return [resolve_window(given.get(r.name), r, rest_bands(model.sensors, r)) for r in records]
 
 
-def ready_records(model: Model, records, windows: list[Window]) -> list[Record]:
+def ready_records(model: Model, records, windows: list[Window], *, say: bool = True
+                  ) -> list[Record]:
     """Records as the rig logged them, made ready for its model, each cut to its window
     (:func:`jaxflex.measured.prepare`), with command-line errors; for a rig with sensors, one
-    line per record says which of them it holds."""
+    line per record says which of them it holds (unless not ``say``)."""
     from jaxflex.measured import logged_sensors, prepare
 
     ready = _speaking_cli(prepare, model, list(records), windows)
-    for record, window in zip(records, windows, strict=True) if model.sensors else ():
+    for record, window in zip(records, windows, strict=True) if model.sensors and say else ():
         found = logged_sensors(model, record)
         missing = [c for c in model.channels if c not in record.columns]
         cut = "" if window is None else f", {window[0]:g} to {window[1]:g} s"
