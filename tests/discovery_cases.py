@@ -4,6 +4,8 @@ where the loop starts (near, not at, the true base parameters)."""
 
 from __future__ import annotations
 
+import functools
+
 from jaxflex.diagnosis import NoiseLevel
 from jaxflex.effects import get_effect
 from jaxflex.model import Model
@@ -34,3 +36,25 @@ def one(name: str, value: float, **kwargs):
     """:func:`hidden` with one library effect, its first parameter at ``value``."""
     effect = get_effect(name)
     return hidden({effect: {effect.parameters[0].name: value}}, **kwargs)
+
+
+@functools.cache
+def rotflex_report():
+    """``discover`` on the real ROTFLEX square wave, held out on run 985, through the rig's
+    sensors (DE 10 × 20, one step); computed once per process (the test skips without data)."""
+    from test_arm import ARMS
+    from test_datasets import REAL_DATA_DIR, _or_skip
+
+    from jaxflex import datasets
+    from jaxflex.arm import load_arm
+    from jaxflex.discovery import discover
+    from jaxflex.measured import fit_noise, model_record
+
+    runs = _or_skip(datasets.load, "quanser_rotflex", REAL_DATA_DIR)
+    arm = load_arm(ARMS / "quanser_rotflex.toml")
+    square = runs["square_wave"]
+    return discover(
+        [model_record(arm, square)], holdout=[model_record(arm, runs["random_985"])],
+        model=arm, noise=fit_noise(arm, square), t_end=None, budget=(10, 20), max_steps=1,
+        seed=0,
+    )

@@ -18,7 +18,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 import scipy.stats as st
-from discovery_cases import NOISE, START, TRUTH, hidden, one
+from discovery_cases import NOISE, START, TRUTH, hidden, one, rotflex_report
 
 from jaxflex.cli import main
 from jaxflex.data import save_record
@@ -542,21 +542,7 @@ def test_discover_on_the_rotflex_square_wave_names_the_torque_offset():
     and drifts to 1142 % / 26.1 % over the 60 s held out; torque_offset ranks first (gravity
     second) and its refit, tau_0 = -0.0070 N m, brings the fit to 7.5 % / 8.9 % and the held-out
     angle to 112 % (strain 27.9 %)."""
-    from test_arm import ARMS
-    from test_datasets import REAL_DATA_DIR, _or_skip
-
-    from jaxflex import datasets
-    from jaxflex.arm import load_arm
-    from jaxflex.measured import fit_noise, model_record
-
-    runs = _or_skip(datasets.load, "quanser_rotflex", REAL_DATA_DIR)
-    arm = load_arm(ARMS / "quanser_rotflex.toml")
-    square = runs["square_wave"]
-    report = discover(
-        [model_record(arm, square)], holdout=[model_record(arm, runs["random_985"])],
-        model=arm, noise=fit_noise(arm, square), t_end=None, budget=(10, 20), max_steps=1,
-        seed=0,
-    )
+    report = rotflex_report()
     assert report.channels == ("joint_angle", "deflection_angle")
     assert report.added == ("torque_offset",)
     assert [r.effect for r in report.rankings[0][:2]] == ["torque_offset", "gravity"]

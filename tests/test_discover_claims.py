@@ -14,12 +14,12 @@ import json
 import re
 
 import pytest
-from discovery_cases import NOISE, START, hidden, one
+from discovery_cases import NOISE, START, hidden, one, rotflex_report
 
 from jaxflex.discovery import RULES, discover
 from jaxflex.discovery.explain import LOWERS_FREQUENCIES, noise_claim
 from jaxflex.effects import get_effect
-from jaxflex.plots.diagnose import _LABELS, plot_diagnosis
+from jaxflex.plots.diagnose import _label, plot_diagnosis
 
 LAG_EFFECTS = {"delay", "motor_lag"}
 
@@ -115,7 +115,7 @@ def check_titles(report):
         for name, channel in diag.channels.items():
             ok, verdict, statistic = noise_claim(channel, diag.alpha)
             assert ok == channel.consistent(diag.alpha)
-            label = _LABELS.get(name, name)
+            label = _label(name)
             assert f"{label}: {verdict}\n{statistic}" in titles, (verdict, titles)
             if channel.noise.kind == "white":
                 assert (verdict == "consistent with noise") == (
@@ -202,21 +202,7 @@ def test_every_rule_is_listed_in_the_docs_table():
 
 @pytest.mark.slow  # 35 s on a busy 2-core machine (DE 10 x 20, one step, 60 s held out)
 def test_rotflex_claims_match_their_statistics():
-    from test_arm import ARMS
-    from test_datasets import REAL_DATA_DIR, _or_skip
-
-    from jaxflex import datasets
-    from jaxflex.arm import load_arm
-    from jaxflex.measured import fit_noise, model_record
-
-    runs = _or_skip(datasets.load, "quanser_rotflex", REAL_DATA_DIR)
-    arm = load_arm(ARMS / "quanser_rotflex.toml")
-    square = runs["square_wave"]
-    report = discover(
-        [model_record(arm, square)], holdout=[model_record(arm, runs["random_985"])],
-        model=arm, noise=fit_noise(arm, square), t_end=None, budget=(10, 20), max_steps=1,
-        seed=0,
-    )
+    report = rotflex_report()
     data = check_claims(report)
     offset = next(e for e in data["ranking"][0] if e["effect"] == "torque_offset")
     assert offset["evidence"]["lag"] is None and "ms" not in offset["explanation"]
