@@ -528,9 +528,11 @@ def test_a_rigid_estimate_beyond_a_bound_seeds_the_search_on_it():
     """The warm start of a rigid-body b_v above its bound round-trips through the log map to
     the bound itself (it ended one ulp past it, and identify refused the seed)."""
     records = make_records(inputs=("pulse", "half_sine"), duration=1.0)
-    above = dataclasses.replace(_rigid(records), b_v=0.5, active=())
+    above = dataclasses.replace(_rigid(records, Model(), ("joint_angle", "tip_acceleration")),
+                                b_v=0.5, active=())
     params = _initial_params(records, Model(), None, (2, 8), 0, False, above,
-                             {"bounds": None, "fixed": None, "weights": None, "noise": None})
+                             {"bounds": None, "fixed": None, "weights": None, "noise": None,
+                              "channels": ("joint_angle", "tip_acceleration")})
     assert 1e-5 <= params["b_v"] <= 0.3
 
 
