@@ -39,7 +39,7 @@ from jaxflex.diagnosis.frf import LINK_OUTPUTS
 from jaxflex.metrics import frf_nrmse, h1_frf, nrmse, relative_error, spectral_window
 from jaxflex.modal import free_hub_modes
 from jaxflex.model import Model
-from jaxflex.objective import check_channels, check_inputs, fitted_channels
+from jaxflex.objective import check_channels, check_inputs, fitted_channels, record_tuple
 from jaxflex.sensors import calibrated
 from jaxflex.simulation import Outputs, simulate
 
@@ -157,7 +157,7 @@ class Comparison:
     simulated outputs, and the model's resonances. Index it by record name or position."""
 
     rows: tuple[RecordComparison, ...]
-    records: Dataset | tuple[Record, ...]
+    records: tuple[Record, ...]
     simulated: tuple[Outputs, ...]
     params: dict[str, float]
     effects: tuple[str, ...]
@@ -293,9 +293,7 @@ def compare(
     it is known, e.g. for synthetic records, to report the noise floor next to each metric; a
     rig's sensors state their own (their resolution and noise).
     """
-    dataset = _as_dataset(records)
-    if not len(dataset):
-        raise ValueError("compare needs at least one record")
+    dataset = record_tuple(records)  # one sampling rate or several
     names = [r.name for r in dataset]
     twice = sorted({n for n in names if names.count(n) > 1})
     if twice:
@@ -589,15 +587,6 @@ def _peaks(freqs: np.ndarray, magnitude: np.ndarray, valid: np.ndarray) -> tuple
 
 
 # --- helpers ------------------------------------------------------------------------------------
-
-
-def _as_dataset(records: Record | Iterable[Record]) -> Dataset | tuple[Record, ...]:
-    """A data set as it is; other records as a tuple (they may differ in sampling rate)."""
-    if isinstance(records, Dataset):
-        return records
-    if isinstance(records, Record):
-        return (records,)
-    return tuple(records)
 
 
 def _time_window(record: Record, t_end: float | None) -> np.ndarray:

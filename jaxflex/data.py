@@ -242,11 +242,16 @@ class Record:
             columns, note=f"trim [{float(t[cut][0])!r}, {float(t[cut][-1])!r}] s"
         )
 
+    @classmethod
+    def from_columns(cls, columns: Mapping[str, np.ndarray], **fields: object) -> Record:
+        """A record of ``columns`` by name (``time``, the input, the channels), the
+        reference-format ones in their fields and the others as extras; ``fields`` are the
+        other fields (``name``, ``metadata``, ...)."""
+        return cls(**_split_columns(columns), **fields)
+
     def with_columns(self, columns: Mapping[str, np.ndarray], note: str) -> Record:
         """A copy with all columns replaced and ``note`` appended to the history."""
-        extras = {c: a for c, a in columns.items() if c not in REQUIRED_COLUMNS}
-        required = {c: columns.get(c) for c in REQUIRED_COLUMNS}
-        return self.replace(**required, extras=extras, metadata=self.noted_metadata(note))
+        return self.replace(**_split_columns(columns), metadata=self.noted_metadata(note))
 
     def noted_metadata(self, note: str) -> dict[str, str]:
         """Metadata with ``note`` appended to its 'history' entry (provenance of processing)."""
@@ -842,6 +847,13 @@ def _check_inputs_and_outputs(names: Sequence[str], where: str) -> None:
             f"{where}: no output column besides {['time', *inputs]}; a record needs at least "
             "one measured channel (e.g. joint_angle, tip_acceleration)"
         )
+
+
+def _split_columns(columns: Mapping[str, np.ndarray]) -> dict[str, object]:
+    """``columns`` as :class:`Record` fields: the reference-format columns (None where absent)
+    and the rest under ``extras``."""
+    required = {c: columns.get(c) for c in REQUIRED_COLUMNS}
+    return required | {"extras": {c: a for c, a in columns.items() if c not in REQUIRED_COLUMNS}}
 
 
 def _check_extra_name(key: object, where: str) -> None:

@@ -168,10 +168,8 @@ def logged_record(
     for sensor in model.sensors:
         reading = np.asarray(read[sensor.channel]) + sensor.offset
         columns[sensor.channel] = reading if rng is None else sensor.observe(reading, rng)
-    standard = {c: columns.pop(c, None) for c in ("time", "torque", "joint_angle",
-                                                  "tip_acceleration")}
-    return Record(**standard, extras=columns, name=name,
-                  metadata={"rig": model.name} | dict(metadata or {}))
+    return Record.from_columns(columns, name=name,
+                               metadata={"rig": model.name} | dict(metadata or {}))
 
 
 __all__ = ["REST_SPAN", "fit_noise", "logged_record", "logged_sensors", "model_record",

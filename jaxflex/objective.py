@@ -220,6 +220,17 @@ def record_tuple(records: Records) -> tuple[Record, ...]:
     return records
 
 
+def held_fixed(
+    model: Model,
+    fixed: Mapping[str, ArrayLike] | None,
+    bounds: Mapping[str, tuple[float, float]] | None,
+) -> dict[str, ArrayLike]:
+    """The parameters held fixed: the rig's own (at their reference values) unless ``bounds``
+    frees one, then ``fixed`` (which overrides them)."""
+    own = {k: v for k, v in model.fixed_values.items() if k not in (bounds or {})}
+    return own | dict(fixed or {})
+
+
 def check_inputs(records: Records, model: Model) -> None:
     """Every record logs the input the rig's drive reads (one line naming the record)."""
     for r in record_tuple(records):
@@ -355,8 +366,7 @@ def build_objective(
     for c in channels:
         if not any(c in r.columns for r in dataset):
             dataset[0].channel(c)  # a KeyError naming the record, the channel and its columns
-    own_fixed = {k: v for k, v in model.fixed_values.items() if k not in (bounds or {})}
-    fixed = own_fixed | dict(fixed or {})
+    fixed = held_fixed(model, fixed, bounds)
     if noise is not None:
         if weights is not None:
             raise ValueError("give channel weights or noise levels, not both")
@@ -416,4 +426,4 @@ def build_objective(
 
 __all__ = ["DEFAULT_CHANNELS", "Objective", "as_dataset", "build_objective", "check_channels",
            "check_inputs", "check_records", "check_weights", "fitted_channels", "free_specs",
-           "noise_weights", "record_tuple"]
+           "held_fixed", "noise_weights", "record_tuple"]

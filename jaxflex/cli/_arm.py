@@ -38,7 +38,7 @@ def add_arm_arguments(p: argparse.ArgumentParser, *, window: bool = True) -> Non
         add_windows_argument(p)
 
 
-def load_arm_file(path: str | os.PathLike, option: str = "--arm") -> Model:
+def load_arm_file(path: str | os.PathLike) -> Model:
     """The rig ``path`` names (an arm file, or a packaged rig); its errors are one-line usage
     errors."""
     from jaxflex.arm import ArmError, load_arm
@@ -46,8 +46,7 @@ def load_arm_file(path: str | os.PathLike, option: str = "--arm") -> Model:
     try:
         return load_arm(path)
     except ArmError as err:
-        message = str(err)
-        raise UsageError(message if option == "--arm" else f"{option}: {message}") from None
+        raise UsageError(str(err)) from None
 
 
 def rig_of(args: argparse.Namespace, fit=None) -> tuple[Model, str | None]:
@@ -150,14 +149,11 @@ def load_rig_records(paths, args: argparse.Namespace, model: Model | None = None
     return records
 
 
-def sensor_noise(model: Model, records, channels) -> dict:
-    """The noise levels the rig's sensors state on ``channels`` (``--noise`` overrides)."""
+def sensor_noise(model: Model, records) -> dict:
+    """The noise levels the rig's sensors state (``--noise`` overrides them)."""
     from jaxflex.measured import fit_noise
 
-    if not model.sensors:
-        return {}
-    return {c: v for c, v in _speaking_cli(fit_noise, model, records[0]).items()
-            if c in channels}
+    return _speaking_cli(fit_noise, model, records[0])
 
 
 def _speaking_cli(function, *args, **kwargs):

@@ -116,7 +116,7 @@ def run(args: argparse.Namespace) -> int:
     if holdout is not None:
         holdout = ready_records(model, holdout, windows_of(args, model, holdout))
     if model.sensors:  # records as logged: the sensors' noise, scored over the whole record
-        keywords["noise"] = sensor_noise(model, records, model.channels) | (
+        keywords["noise"] = sensor_noise(model, records) | (
             keywords.get("noise") or {})
         keywords["t_end"] = None
     report = discover(

@@ -37,6 +37,7 @@ from jaxflex.objective import (
     check_records,
     check_weights,
     fitted_channels,
+    held_fixed,
 )
 from jaxflex.simulation import Outputs
 
@@ -254,8 +255,7 @@ def discover(
         every = [*records, *(holdout or ())]
         channels = tuple(c for c in fitted_channels(records, model)
                          if all(c in r.columns for r in every)) or fitted_channels(every, model)
-    fixed = {k: v for k, v in model.fixed_values.items() if k not in (bounds or {})} | dict(
-        fixed or {})
+    fixed = held_fixed(model, fixed, bounds)
     channels = _channels(records, channels, model)
     cands = tuple(
         c for c in candidate_set(candidates, channels, model) if c.name not in model.effect_names
