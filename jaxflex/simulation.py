@@ -33,7 +33,8 @@ so reverse mode does not store the iterations.
 
 from __future__ import annotations
 
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
+from typing import NamedTuple
 
 import equinox as eqx
 import jax
@@ -380,19 +381,103 @@ def _rest_under_loads(model: Model, params: Params, structure, modes: Modes, loa
     return -modes.hub @ eta, eta
 
 
+class InitialState(eqx.Module):
+    """A start away from rest: deviations of the hub angle and velocity and of the lowest
+    modes' coordinates from rest under the loads (modes not given start at rest).
+
+    ``modal`` and ``modal_velocity`` hold the ``k`` lowest flexible modes' coordinates
+    (mass-normalised, as :func:`jaxflex.modal.free_hub_modes` gives them), ``k`` at most the
+    advanced modes. The hub angle is the joint angle ``θ = θ_r + pᵀη``, so a deflection given
+    here leaves it where ``angle`` puts it.
+    """
+
+    angle: Scalar
+    velocity: Scalar
+    modal: Float[Array, " k"]
+    modal_velocity: Float[Array, " k"]
+
+    def __init__(self, angle=0.0, velocity=0.0, modal=(), modal_velocity=None):
+        self.angle = jnp.asarray(angle, dtype=float)
+        self.velocity = jnp.asarray(velocity, dtype=float)
+        self.modal = jnp.asarray(modal, dtype=float).reshape(-1)
+        self.modal_velocity = (
+            jnp.zeros_like(self.modal)
+            if modal_velocity is None
+            else jnp.asarray(modal_velocity, dtype=float).reshape(-1)
+        )
+        if self.modal.shape != self.modal_velocity.shape:
+            raise ValueError(
+                f"InitialState: modal has {self.modal.shape[0]} coordinates but "
+                f"modal_velocity {self.modal_velocity.shape[0]}"
+            )
+
+    @property
+    def n_modes(self) -> int:
+        """How many of the lowest flexible modes it sets."""
+        return int(self.modal.shape[0])
+
+
+State = tuple[Array, Array, Array, Array, Array, Array, Array]
+"""The time loop's state at a sample instant: rigid angle and velocity ``θ_r, θ'_r``, modal
+coordinates and velocities ``η, η'`` (advanced modes), the joint velocity ``θ'`` and the
+friction and its slope there."""
+
+
+class Dynamics(NamedTuple):
+    """One parameter set's sampled dynamics, as functions of the time loop's :data:`State`.
+
+    ``advance(state, taus)`` takes one sample interval under the ``n_substeps`` fine torques
+    ``taus`` (from :attr:`fine_torque`), ``observe(state, tau)`` gives the outputs at a sample
+    instant (a tuple in :class:`Outputs` order), ``start(initial)`` the state at the first
+    sample, and ``to_vector`` / ``from_vector`` map a state to the flat vector
+    ``[θ_r, θ'_r, η, η']`` and back (the joint velocity and friction recomputed from it).
+    """
+
+    system: _ModalSystem
+    start: Callable[[InitialState | None], State]
+    advance: Callable[[State, Array], State]
+    observe: Callable[[State, Array], tuple[Array, ...]]
+    physical: Callable[[State, Array], tuple[Array, Array]]
+    fine_torque: Callable[[Array], Array]
+    to_vector: Callable[[State], Array]
+    from_vector: Callable[[Array], State]
+
+
 def simulate_core(
     model: Model,
     params: Params,
     torque: Float[Array, " n"],
     dt: float,
     *,
+    initial: InitialState | None = None,
     return_states: bool = False,
 ) -> Outputs | tuple[Outputs, tuple[Array, Array]]:
     """Simulate one parameter set; pure and traceable (no input checks). See :func:`simulate`.
 
-    With ``return_states`` also returns the generalised coordinates and velocities
+    ``initial`` starts it away from rest (default: at rest under the loads). With
+    ``return_states`` also returns the generalised coordinates and velocities
     ``(q, q')``, each ``(n_samples, 1 + 2·n_elements)``, at the sample instants.
     """
+    dynamics = model_dynamics(model, params, dt)
+
+    def sample(state, taus):
+        out = dynamics.observe(state, taus[0])
+        if return_states:
+            out = (out, dynamics.physical(state, taus[0]))
+        return dynamics.advance(state, taus), out
+
+    state0 = dynamics.start(initial)
+    fine = dynamics.fine_torque(torque)
+    _, out = jax.lax.scan(sample, state0, fine, unroll=SCAN_UNROLL)
+    if return_states:
+        out, states = out
+        return _with_readings(model, Outputs(*out)), states
+    return _with_readings(model, Outputs(*out))
+
+
+def model_dynamics(model: Model, params: Params, dt: float) -> Dynamics:
+    """The sampled dynamics of ``model`` with ``params`` at sample interval ``dt``: what
+    :func:`simulate_core` scans, and what a state estimator steps and linearises."""
     n_sub = model.n_substeps
     h = dt / n_sub
     system = _modal_system(model, params, h)
@@ -518,8 +603,9 @@ def simulate_core(
             acceleration,
         )
 
-    fine = jnp.repeat(torque, n_sub)
-    fine = model.input_torque(params, fine, h).reshape(torque.shape[0], n_sub)
+    def fine_torque(torque):
+        fine = jnp.repeat(torque, n_sub)
+        return model.input_torque(params, fine, h).reshape(torque.shape[0], n_sub)
 
     def physical(state, tau):
         theta_r, vel_r, eta, deta, vel, f_vel, _ = state
@@ -530,22 +616,40 @@ def simulate_core(
             q = q + system.static.shapes @ static_forcing(tau - f_vel, rest)
         return q, e_theta * vel_r + system.shapes @ deta
 
-    def sample(state, taus):
-        out = outputs(state, taus[0])
-        if return_states:
-            out = (out, physical(state, taus[0]))
+    def advance(state, taus):
         for j in range(n_sub):
             state = substep(state, taus[j])
-        return state, out
+        return state
 
-    theta_r0, eta0 = system.initial
-    vel0 = jnp.zeros_like(theta_r0)
-    state0 = (theta_r0, vel0, eta0, jnp.zeros_like(eta0), vel0, *law_and_slope(params, vel0))
-    _, out = jax.lax.scan(sample, state0, fine, unroll=SCAN_UNROLL)
-    if return_states:
-        out, states = out
-        return _with_readings(model, Outputs(*out)), states
-    return _with_readings(model, Outputs(*out))
+    def from_vector(x):
+        m = p.shape[0]
+        theta_r, vel_r, eta, deta = x[0], x[1], x[2 : 2 + m], x[2 + m :]
+        vel = vel_r + p @ deta
+        return (theta_r, vel_r, eta, deta, vel, *law_and_slope(params, vel))
+
+    def to_vector(state):
+        theta_r, vel_r, eta, deta = state[:4]
+        return jnp.concatenate([theta_r[None], vel_r[None], eta, deta])
+
+    def start(initial):
+        theta_r0, eta0 = system.initial
+        vel0 = jnp.zeros_like(theta_r0)
+        if initial is None:
+            deta0 = jnp.zeros_like(eta0)
+            return (theta_r0, vel0, eta0, deta0, vel0, *law_and_slope(params, vel0))
+        k = initial.n_modes
+        if k > eta0.shape[0]:
+            raise ValueError(
+                f"InitialState sets {k} modes but the model advances {eta0.shape[0]}"
+            )
+        eta = eta0.at[:k].add(initial.modal)
+        deta = jnp.zeros_like(eta0).at[:k].set(initial.modal_velocity)
+        theta_r = theta_r0 + initial.angle - p[:k] @ initial.modal
+        vel_r = initial.velocity - p[:k] @ initial.modal_velocity
+        return from_vector(jnp.concatenate([theta_r[None], vel_r[None], eta, deta]))
+
+    return Dynamics(system, start, advance, outputs, physical, fine_torque, to_vector,
+                    from_vector)
 
 
 def _with_readings(model: Model, outputs: Outputs) -> Outputs:
