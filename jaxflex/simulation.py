@@ -33,6 +33,7 @@ so reverse mode does not store the iterations.
 
 from __future__ import annotations
 
+import math
 from collections.abc import Callable, Mapping
 from typing import NamedTuple
 
@@ -660,6 +661,34 @@ def _with_readings(model: Model, outputs: Outputs) -> Outputs:
     return eqx.tree_at(lambda o: o.readings, outputs, readings, is_leaf=lambda x: x is None)
 
 
+BUCKETS_PER_OCTAVE = 4
+"""Record lengths are padded up to one of this many lengths per doubling (:func:`bucket_length`),
+so one compiled program serves every record and window of similar length."""
+MIN_BUCKET = 64
+
+
+def bucket_length(n: int) -> int:
+    """The compiled length that serves ``n`` samples: the smallest ``⌈2^(j/4)·64⌉`` (rounded up
+    to a multiple of 16) not below ``n``. Padding wastes under 19 % of a run; the time loop is
+    causal, so the first ``n`` samples are those of an unpadded run."""
+    length, j = MIN_BUCKET, 0
+    while length < n:
+        j += 1
+        length = 16 * math.ceil(MIN_BUCKET * 2.0 ** (j / BUCKETS_PER_OCTAVE) / 16)
+    return length
+
+
+def _padded(torque: Array) -> Array:
+    """``torque`` held at its last sample up to its bucket length."""
+    n = torque.shape[0]
+    return jnp.pad(torque, (0, bucket_length(n) - n), mode="edge")
+
+
+def _first(outputs: Outputs, n: int, axis: int) -> Outputs:
+    """The first ``n`` samples of every output (time along ``axis``)."""
+    return jax.tree_util.tree_map(lambda a: jax.lax.slice_in_dim(a, 0, n, axis=axis), outputs)
+
+
 @eqx.filter_jit
 def _simulate_jit(model: Model, params: Params, torque: Array, dt: float) -> Outputs:
     return simulate_core(model, params, torque, dt)
@@ -719,7 +748,7 @@ def simulate(
     seconds (default: the testbed's). Returns :class:`Outputs` with one value per torque sample.
     """
     values, torque, dt = _check_inputs(model, params, torque, dt, batched=False)
-    return _simulate_jit(model, values, torque, dt)
+    return _first(_simulate_jit(model, values, _padded(torque), dt), torque.shape[0], axis=0)
 
 
 def simulate_batch(
@@ -734,4 +763,5 @@ def simulate_batch(
     (:mod:`jaxflex.parallel`); outputs have shape ``(P, n)``.
     """
     values, torque, dt = _check_inputs(model, params, torque, dt, batched=True)
-    return _simulate_batch_jit(model, values, torque, dt)
+    outputs = _simulate_batch_jit(model, values, _padded(torque), dt)
+    return _first(outputs, torque.shape[0], axis=1)
