@@ -669,7 +669,7 @@ MIN_BUCKET = 64
 
 def bucket_length(n: int) -> int:
     """The compiled length that serves ``n`` samples: the smallest ``⌈2^(j/4)·64⌉`` (rounded up
-    to a multiple of 16) not below ``n``. Padding wastes under 19 % of a run; the time loop is
+    to a multiple of 16) not below ``n``. Padding adds under 25 % to a run; the time loop is
     causal, so the first ``n`` samples are those of an unpadded run."""
     length, j = MIN_BUCKET, 0
     while length < n:

@@ -375,3 +375,26 @@ def test_warm_start_lands_on_the_root_while_sliding():
             assert abs(float(r)) <= simulator.RESIDUAL_ULPS * eps * float(scale), (previous, r)
             # so the plain Newton steps end converged and the safeguarded loop never runs
             assert int(count) == simulator.NEWTON_STEPS + 1, (previous, change, count)
+
+
+def test_length_buckets_share_a_program_and_leave_the_samples_unchanged():
+    """Records of similar length run through one padded program; their samples are those of an
+    unpadded run, bit for bit (the time loop is causal)."""
+    from jaxflex.simulation import _simulate_jit, bucket_length
+
+    lengths = range(2, 5000)
+    buckets = [bucket_length(n) for n in lengths]
+    assert all(b >= n for b, n in zip(buckets, lengths, strict=True))
+    assert np.all(np.diff(buckets) >= 0)
+    assert max(b / n for b, n in zip(buckets, lengths, strict=True) if n > 64) < 1.25
+    assert len(set(buckets)) < 30  # a few programs, not one per length
+
+    model = Model()
+    params = model.space.reference()
+    torque = jnp.asarray(reference_input("pulse", duration=1.0)[1][:900])
+    assert bucket_length(900) == bucket_length(1000)
+    unpadded = _simulate_jit(model, {k: jnp.asarray(v) for k, v in params.items()}, torque,
+                             model.testbed.dt)
+    padded = simulate(model, params, torque)
+    for name in ("joint_angle", "tip_acceleration", "root_strain"):
+        assert np.array_equal(getattr(padded, name), getattr(unpadded, name))
