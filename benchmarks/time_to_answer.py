@@ -1,0 +1,118 @@
+"""Benchmark: how long a user waits, command by command, cold and warm.
+
+Each command runs as a new user runs it: a fresh process, the installed ``jaxflex`` command
+line, a compilation cache that is empty (``cold``) and then the one the cold run left
+(``warm``). Measured:
+
+* ``discover`` on ROTFLEX: fitted on the square wave, held out on run 985, default budget;
+* ``discover`` on the bundled example (``jaxflex demo``'s data), from scratch;
+* ``identify`` on ROTFLEX: the square wave, differential evolution, default budget;
+* ``jaxflex --help``.
+
+``--tree PATH`` runs the commands from another checkout (its ``jaxflex`` package on
+``PYTHONPATH``), so a revision can be measured beside another in the same session on the same
+machine: results are stored under ``--label`` (default: the tree's git revision). The real-rig
+records come from ``jaxflex datasets`` (``JAXFLEX_DATA_DIR`` or the network).
+
+    python benchmarks/time_to_answer.py [--tree PATH] [--label NAME] [--only NAME ...]
+
+Results go to ``benchmarks/results/time_to_answer.json`` (merged with the labels already there).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+from jaxflex._io import provenance, write_json
+
+ROOT = Path(__file__).resolve().parents[1]
+RESULTS = ROOT / "benchmarks" / "results" / "time_to_answer.json"
+TARGETS = {  # seconds, on the project's 2-core machine
+    "discover_rotflex": {"cold": 45.0, "warm": 15.0},
+    "discover_example": {"cold": 30.0},
+    "identify_rotflex": {"cold": 20.0},
+}
+
+
+def commands(tree: Path, data: Path, out: Path) -> dict[str, list[str]]:
+    """The measured command lines (without the leading ``jaxflex``)."""
+    rotflex = ["--arm", "quanser_rotflex"]
+    example = sorted((tree / "jaxflex" / "data").glob("example_*.csv"))
+    fitted = [str(p) for p in example if "holdout" not in p.name]
+    held_out = [str(p) for p in example if "holdout" in p.name]
+    return {
+        "help": ["--help"],
+        "identify_rotflex": ["identify", str(data / "rotflex" / "square_wave.csv"), *rotflex,
+                             "--method", "de", "--out", str(out / "fit.json"), "--overwrite"],
+        "discover_rotflex": ["discover", str(data / "rotflex" / "square_wave.csv"), "--holdout",
+                             str(data / "rotflex" / "random_985.csv"), *rotflex,
+                             "--json", str(out / "discover.json"), "--overwrite"],
+        "discover_example": ["discover", *fitted, "--holdout", *held_out,
+                             "--json", str(out / "discover_example.json"), "--overwrite"],
+    }
+
+
+def prepare_data(tree: Path, data: Path, env: dict[str, str]) -> None:
+    """The ROTFLEX runs as CSV files under ``data``."""
+    subprocess.run([sys.executable, "-m", "jaxflex", "datasets", "get", "quanser_rotflex",
+                    "--out", str(data / "rotflex")],
+                   check=True, env=env, cwd=tree, stdout=subprocess.DEVNULL)
+
+
+def timed(argv: list[str], env: dict[str, str], tree: Path) -> dict:
+    """Wall and child CPU seconds of one command; its exit status and last line."""
+    before = os.times()
+    t0 = time.perf_counter()
+    done = subprocess.run([sys.executable, "-m", "jaxflex", *argv], env=env, cwd=tree,
+                          capture_output=True, text=True)
+    wall = time.perf_counter() - t0
+    after = os.times()
+    cpu = (after.children_user - before.children_user) + (after.children_system
+                                                          - before.children_system)
+    lines = (done.stdout + done.stderr).strip().splitlines()
+    return {"seconds": round(wall, 2), "cpu_seconds": round(cpu, 2), "exit": done.returncode,
+            "last_line": lines[-1] if lines else "", "load_average_before": os.getloadavg()[0]}
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--tree", type=Path, default=ROOT)
+    parser.add_argument("--label")
+    parser.add_argument("--only", nargs="*", default=None)
+    args = parser.parse_args()
+    tree = args.tree.resolve()
+    label = args.label or subprocess.run(
+        ["git", "rev-parse", "--short", "HEAD"], cwd=tree, capture_output=True, text=True
+    ).stdout.strip()
+    with tempfile.TemporaryDirectory() as scratch:
+        scratch = Path(scratch)
+        cache, data, out = scratch / "cache", scratch / "data", scratch / "out"
+        out.mkdir()
+        env = {**os.environ, "PYTHONPATH": str(tree), "JAXFLEX_PROGRESS": "0",
+               "JAX_COMPILATION_CACHE_DIR": str(cache),
+               "JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS": "0.2"}
+        prepare_data(tree, data, {**env, "JAX_COMPILATION_CACHE_DIR": str(scratch / "other")})
+        runs = {}
+        for name, argv in commands(tree, data, out).items():
+            if args.only and name not in args.only:
+                continue
+            if cache.exists():
+                subprocess.run(["rm", "-rf", str(cache)], check=True)
+            runs[name] = {"cold": timed(argv, env, tree), "warm": timed(argv, env, tree)}
+            print(name, {k: v["seconds"] for k, v in runs[name].items()}, flush=True)
+    results = json.loads(RESULTS.read_text()) if RESULTS.exists() else {"revisions": {}}
+    results.update(benchmark="time to answer: fresh processes, cold and warm compilation cache",
+                   targets_seconds=TARGETS)
+    results["revisions"][label] = {"runs": runs, "provenance": provenance()}
+    write_json(RESULTS, results, overwrite=True)
+
+
+if __name__ == "__main__":
+    main()
