@@ -11,7 +11,19 @@ import pytest
 
 jax.config.update("jax_enable_x64", True)
 
-from jaxflex.evolve import DE, GA, PSO, EvolutionResult, get_strategy, run  # noqa: E402
+import equinox as eqx  # noqa: E402
+
+from jaxflex.evolve import (  # noqa: E402
+    DE,
+    GA,
+    PSO,
+    AbstractStrategy,
+    EvolutionResult,
+    State,
+    get_strategy,
+    run,
+    update_best,
+)
 from jaxflex.evolve._base import initial_population  # noqa: E402
 from jaxflex.evolve.de import _distinct_others  # noqa: E402
 
@@ -297,3 +309,43 @@ def test_get_strategy_rejects_unknown_name():
         get_strategy("cmaes")
     for name in NAMES:
         assert name in str(info.value)
+
+
+class _RandomSearch(AbstractStrategy):
+    """A strategy written outside the library: fresh uniform candidates, keep the better."""
+
+    population: int = eqx.field(static=True, default=16)
+
+    def ask(self, state, key):
+        return jax.random.uniform(key, state.population.shape), state
+
+    def tell(self, state, candidates, fitness):
+        better = fitness < state.fitness
+        x = jnp.where(better[:, None], candidates, state.population)
+        f = jnp.where(better, fitness, state.fitness)
+        best_x, best_f = update_best(state.best_x, state.best_fitness, x, f)
+        return State(x, f, best_x, best_f, state.generation + 1)
+
+
+def test_a_strategy_of_ones_own_runs_through_ask_and_tell():
+    """``run`` drives any subclass by its ask/tell; ``step`` (ask, evaluate, tell) agrees."""
+    def sphere(x):
+        return jnp.sum((x - 0.25) ** 2, axis=1)
+
+    result = run(_RandomSearch(), sphere, 2, seed=0, generations=30)
+    assert result.best_fitness < 0.01
+    assert np.all(np.diff(np.asarray(result.history_best)) <= 0)
+    strategy, key = _RandomSearch(), jax.random.key(1)
+    state = strategy.init(key, 2, sphere)
+    stepped = strategy.step(state, key, sphere)
+    candidates, asked = strategy.ask(state, key)
+    told = strategy.tell(asked, candidates, sphere(candidates))
+    assert np.array_equal(stepped.population, told.population)
+
+
+def test_a_strategy_without_ask_and_tell_cannot_be_made():
+    class Incomplete(AbstractStrategy):
+        population: int = 4
+
+    with pytest.raises(TypeError, match="abstract"):
+        Incomplete()

@@ -1,7 +1,8 @@
 """Batched evolutionary search on the unit box: DE, GA and PSO, as in the paper.
 
-Each strategy is an :class:`equinox.Module` of hyper-parameters with pure ``init``/``step``;
-:func:`run` drives one for a number of generations and returns an :class:`EvolutionResult`.
+Each strategy is an :class:`equinox.Module` of hyper-parameters with pure ``ask``/``tell``
+(:class:`AbstractStrategy`: subclass it for a strategy of your own); :func:`run` drives one
+for a number of generations and returns an :class:`EvolutionResult`.
 The fitness is minimised and evaluates a whole ``(P, d)`` population in one call::
 
     from jaxflex.evolve import get_strategy, run
@@ -14,7 +15,7 @@ from __future__ import annotations
 import dataclasses
 from typing import Any
 
-from jaxflex.evolve._base import AbstractStrategy, EvolutionResult, State, run
+from jaxflex.evolve._base import AbstractStrategy, EvolutionResult, State, run, update_best
 from jaxflex.evolve.de import DE
 from jaxflex.evolve.ga import GA
 from jaxflex.evolve.pso import PSO, PSOState
@@ -56,4 +57,5 @@ __all__ = [
     "State",
     "get_strategy",
     "run",
+    "update_best",
 ]

@@ -188,14 +188,43 @@ class State(eqx.Module):
 
 
 class AbstractStrategy(eqx.Module):
-    """An evosax-like strategy: hyper-parameters as fields, ``init`` and ``step`` pure and jittable.
+    """An evosax-like strategy: hyper-parameters as fields, pure and jittable ``ask``/``tell``.
+
+    A run is :meth:`initialize` (the first population), :meth:`start` (the state once it is
+    evaluated), then per generation :meth:`ask` (the candidates to evaluate, in one batched
+    call) and :meth:`tell` (select with their fitness). :meth:`init` and :meth:`step` do the
+    same with a fitness function, for a loop inside one program (``lax.scan``).
 
     Subclasses define ``population`` (a static int field), validate their fields in
-    ``__check_init__`` and implement :meth:`step` (ask + one batched evaluation + tell).
+    ``__check_init__`` and implement :meth:`ask` and :meth:`tell`.
     """
 
     name: ClassVar[str] = "strategy"
     population: eqx.AbstractVar[int]
+
+    def initialize(
+        self, key: PRNGKeyArray, dim: int, init_population: Float[ArrayLike, "k d"] | None = None
+    ) -> Float[Array, "P d"]:
+        """The first population: uniform on the unit box, its first rows ``init_population``."""
+        return initial_population(key, self.population, dim, init_population)
+
+    def start(self, population: Float[Array, "P d"], fitness: Float[Array, " P"]) -> State:
+        """The state after the first population was evaluated."""
+        best_x, best_fitness = update_best(
+            population[0], jnp.asarray(jnp.inf, population.dtype), population, fitness
+        )
+        return State(population, fitness, best_x, best_fitness, jnp.zeros((), dtype=int))
+
+    @abc.abstractmethod
+    def ask(self, state: State, key: PRNGKeyArray) -> tuple[Float[Array, "P d"], State]:
+        """The next ``population`` candidates to evaluate, and the state that remembers what
+        :meth:`tell` needs of how they were made."""
+
+    @abc.abstractmethod
+    def tell(
+        self, state: State, candidates: Float[Array, "P d"], fitness: Float[Array, " P"]
+    ) -> State:
+        """The state after the asked ``candidates`` scored ``fitness``: selection."""
 
     def init(
         self,
@@ -205,14 +234,13 @@ class AbstractStrategy(eqx.Module):
         init_population: Float[ArrayLike, "k d"] | None = None,
     ) -> State:
         """Sample (and seed) the first population and evaluate it once."""
-        x = initial_population(key, self.population, dim, init_population)
-        fitness = evaluate(fitness_fn, x)
-        best_x, best_fitness = update_best(x[0], jnp.asarray(jnp.inf, x.dtype), x, fitness)
-        return State(x, fitness, best_x, best_fitness, jnp.zeros((), dtype=int))
+        population = self.initialize(key, dim, init_population)
+        return self.start(population, evaluate(fitness_fn, population))
 
-    @abc.abstractmethod
     def step(self, state: State, key: PRNGKeyArray, fitness_fn: FitnessFn) -> State:
-        """One generation: propose ``population`` candidates, evaluate them in one call, select."""
+        """One generation: ask, evaluate the candidates in one call, tell."""
+        candidates, state = self.ask(state, key)
+        return self.tell(state, candidates, evaluate(fitness_fn, candidates))
 
     def for_generations(self, generations: int) -> AbstractStrategy:
         """This strategy adapted to a run of ``generations`` (for schedules); default: unchanged."""
@@ -269,44 +297,22 @@ def _summary(state: State) -> tuple[Float[Array, ""], Float[Array, ""], Float[Ar
     return state.best_fitness, mean, state.best_x
 
 
-def _asked(generation: Callable[[FitnessFn], State]) -> Float[Array, "P d"]:
-    """The population ``generation`` (a strategy's init or step) evaluates, left unevaluated.
-
-    The strategy runs with a fitness that only records its argument; what the strategy would do
-    with the values is traced and then dropped from the program.
-    """
-    asked = []
-
-    def record(population):
-        asked.append(population)
-        return jnp.zeros(population.shape[:1], population.dtype)
-
-    generation(record)
-    if len(asked) != 1:
-        raise ValueError(f"a generation must evaluate its population in one call, not {len(asked)}")
-    return gathered(asked[0])
+def _ask_first(strategy, key, dim, init_population):
+    return gathered(strategy.initialize(key, dim, init_population))
 
 
-def _told(generation: Callable[[FitnessFn], State], fitness: Float[Array, " P"]):
-    """The state ``generation`` reaches when its population's fitness is ``fitness``."""
-    state = gathered(generation(lambda _: fitness))
+def _tell_first(strategy, population, fitness):
+    state = gathered(strategy.start(population, sanitize_fitness(fitness)))
     return state, _summary(state)
 
 
-def _ask_first(strategy, key, dim, init_population):
-    return _asked(lambda f: strategy.init(key, dim, f, init_population))
-
-
-def _tell_first(strategy, key, dim, init_population, fitness):
-    return _told(lambda f: strategy.init(key, dim, f, init_population), fitness)
-
-
 def _ask(strategy, state, key):
-    return _asked(lambda f: strategy.step(state, key, f))
+    return gathered(strategy.ask(state, key))
 
 
-def _tell(strategy, state, key, fitness):
-    return _told(lambda f: strategy.step(state, key, f), fitness)
+def _tell(strategy, state, candidates, fitness):
+    state = gathered(strategy.tell(state, candidates, sanitize_fitness(fitness)))
+    return state, _summary(state)
 
 
 def _evaluate_program(fitness_fn, population):
@@ -314,8 +320,8 @@ def _evaluate_program(fitness_fn, population):
 
 
 class _Programs(NamedTuple):
-    """A run's compiled programs: the strategy's ask and tell of the first generation and of
-    every later one, and the evaluation of a population, which all of them share."""
+    """A run's compiled programs: the first population and its state, the strategy's ask and
+    tell of every later generation, and the evaluation of a population, which all share."""
 
     ask_first: Callable
     tell_first: Callable
@@ -344,12 +350,11 @@ def _compile(strategy, keys, dim, fitness_fn, init_population) -> _Programs:
     population = like(ask_first)
     evaluate_population = eqx.filter_jit(_evaluate_program).lower(fitness_fn, population)
     fitness = like(evaluate_population)
-    tell_first = eqx.filter_jit(_tell_first).lower(
-        strategy, keys[0], dim, init_population, fitness
-    )
+    tell_first = eqx.filter_jit(_tell_first).lower(strategy, population, fitness)
     state, _ = like(tell_first)
     ask = eqx.filter_jit(_ask).lower(strategy, state, keys[1])
-    tell = eqx.filter_jit(_tell).lower(strategy, state, keys[1], fitness)
+    candidates, asked_state = like(ask)
+    tell = eqx.filter_jit(_tell).lower(strategy, asked_state, candidates, fitness)
     lowered = (ask_first, tell_first, ask, tell, evaluate_population)
     return _Programs(*(program.compile() for program in lowered))
 
@@ -420,13 +425,14 @@ def run(
     compiled = time.perf_counter()
     population = programs.ask_first(strategy, keys[0], dim, init_population)
     fitness = programs.evaluate(fitness_fn, population)
-    state, summary = programs.tell_first(strategy, keys[0], dim, init_population, fitness)
+    state, summary = programs.tell_first(strategy, population, fitness)
 
     summaries = [summary]
     bar = Progress(range(1, generations + 1), label=strategy.name, enabled=progress)
     for g in bar:
-        fitness = programs.evaluate(fitness_fn, programs.ask(strategy, state, keys[g]))
-        state, summary = programs.tell(strategy, state, keys[g], fitness)
+        candidates, state = programs.ask(strategy, state, keys[g])
+        fitness = programs.evaluate(fitness_fn, candidates)
+        state, summary = programs.tell(strategy, state, candidates, fitness)
         summaries.append(summary)
         if progress:
             bar.set_message(f"best {float(summary[0]):.3e}")

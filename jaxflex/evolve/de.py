@@ -10,11 +10,9 @@ from jaxtyping import Array, Float, Int, PRNGKeyArray
 
 from jaxflex.evolve._base import (
     AbstractStrategy,
-    FitnessFn,
     State,
     check_integer,
     check_range,
-    evaluate,
     repair,
     uniform_blocks,
     uniform_index,
@@ -67,7 +65,8 @@ class DE(AbstractStrategy):
         """Paper settings: 100 members, ``F = 0.5``, ``CR = 0.8``, DE/rand/1/bin."""
         return cls(**{"population": 100, "F": 0.5, "CR": 0.8, "variant": "rand1bin", **overrides})
 
-    def step(self, state: State, key: PRNGKeyArray, fitness_fn: FitnessFn) -> State:
+    def ask(self, state: State, key: PRNGKeyArray) -> tuple[Float[Array, "P d"], State]:
+        """Trials: mutation from distinct random members, binomial crossover, repair."""
         x, fitness = state.population, state.fitness
         n, d = x.shape
         n_picks = 3 if self.variant == "rand1bin" else 2
@@ -81,12 +80,14 @@ class DE(AbstractStrategy):
         mutant = base + self.F * (x[others[:, -2]] - x[others[:, -1]])
 
         take = (u_cross < self.CR) | (jnp.arange(d) == uniform_index(u_jrand, d))
-        trial = repair(u_repair, jnp.where(take, mutant, x), x)
+        return repair(u_repair, jnp.where(take, mutant, x), x), state
 
-        trial_fitness = evaluate(fitness_fn, trial)
-        accept = trial_fitness <= fitness
-        x = jnp.where(accept[:, None], trial, x)
-        fitness = jnp.where(accept, trial_fitness, fitness)
+    def tell(self, state: State, candidates: Float[Array, "P d"],
+             fitness: Float[Array, " P"]) -> State:
+        """Greedy selection: each trial replaces its target where it is no worse."""
+        accept = fitness <= state.fitness
+        x = jnp.where(accept[:, None], candidates, state.population)
+        fitness = jnp.where(accept, fitness, state.fitness)
         best_x, best_fitness = update_best(state.best_x, state.best_fitness, x, fitness)
         return State(x, fitness, best_x, best_fitness, state.generation + 1)
 

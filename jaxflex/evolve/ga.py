@@ -7,15 +7,13 @@ from typing import Any, ClassVar
 
 import equinox as eqx
 import jax.numpy as jnp
-from jaxtyping import PRNGKeyArray
+from jaxtyping import Array, Float, PRNGKeyArray
 
 from jaxflex.evolve._base import (
     AbstractStrategy,
-    FitnessFn,
     State,
     check_integer,
     check_range,
-    evaluate,
     gaussian,
     repair,
     uniform_blocks,
@@ -82,7 +80,8 @@ class GA(AbstractStrategy):
         """Size of the mating pool kept by truncation selection."""
         return min(self.population, max(2, math.ceil(self.selection_rate * self.population)))
 
-    def step(self, state: State, key: PRNGKeyArray, fitness_fn: FitnessFn) -> State:
+    def ask(self, state: State, key: PRNGKeyArray) -> tuple[Float[Array, "P d"], State]:
+        """Children: parents from the truncated pool, BLX-α crossover, Gaussian mutation."""
         x, fitness = state.population, state.fitness
         n, d = x.shape
         u_parents, u_cross, u_blend, u_mut, u_noise, u_angle, u_repair = uniform_blocks(
@@ -97,13 +96,16 @@ class GA(AbstractStrategy):
         gamma = (1.0 + 2.0 * self.blend_alpha) * u_blend - self.blend_alpha
         child = jnp.where(u_cross < self.crossover, p1 + gamma * (p2 - p1), p1)
         noise = self.mutation_scale * gaussian(u_noise, u_angle)
-        child = repair(u_repair, jnp.where(u_mut < self.mutation, child + noise, child), p1)
+        return repair(u_repair, jnp.where(u_mut < self.mutation, child + noise, child), p1), state
 
-        child_fitness = evaluate(fitness_fn, child)
-        elite = order[: self.n_elite]
-        merged_x = jnp.concatenate([x[elite], child])
-        merged_f = jnp.concatenate([fitness[elite], child_fitness])
-        keep = jnp.argsort(merged_f, stable=True)[:n]
+    def tell(self, state: State, candidates: Float[Array, "P d"],
+             fitness: Float[Array, " P"]) -> State:
+        """Elitism: the ``n_elite`` best members compete with the children; the best P live."""
+        x = state.population
+        elite = jnp.argsort(state.fitness, stable=True)[: self.n_elite]
+        merged_x = jnp.concatenate([x[elite], candidates])
+        merged_f = jnp.concatenate([state.fitness[elite], fitness])
+        keep = jnp.argsort(merged_f, stable=True)[: x.shape[0]]
         x, fitness = merged_x[keep], merged_f[keep]
         best_x, best_fitness = update_best(state.best_x, state.best_fitness, x, fitness)
         return State(x, fitness, best_x, best_fitness, state.generation + 1)

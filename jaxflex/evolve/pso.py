@@ -12,12 +12,10 @@ from jaxtyping import Array, ArrayLike, Float, PRNGKeyArray
 
 from jaxflex.evolve._base import (
     AbstractStrategy,
-    FitnessFn,
     State,
     check_integer,
     check_range,
     clip_at_walls,
-    evaluate,
     uniform_blocks,
     update_best,
 )
@@ -93,14 +91,9 @@ class PSO(AbstractStrategy):
         fraction = jnp.clip(generation / max(self.horizon - 1, 1), 0.0, 1.0)
         return self.w + (self.w_final - self.w) * fraction
 
-    def init(
-        self,
-        key: PRNGKeyArray,
-        dim: int,
-        fitness_fn: FitnessFn,
-        init_population: Float[ArrayLike, "k d"] | None = None,
-    ) -> PSOState:
-        s = super().init(key, dim, fitness_fn, init_population)
+    def start(self, population: Float[Array, "P d"], fitness: Float[Array, " P"]) -> PSOState:
+        """The swarm at rest: zero velocities, each particle its own best."""
+        s = super().start(population, fitness)
         return PSOState(
             s.population, s.fitness, s.best_x, s.best_fitness, s.generation,
             velocity=jnp.zeros_like(s.population),
@@ -108,7 +101,8 @@ class PSO(AbstractStrategy):
             personal_best_fitness=s.fitness,
         )
 
-    def step(self, state: PSOState, key: PRNGKeyArray, fitness_fn: FitnessFn) -> PSOState:
+    def ask(self, state: PSOState, key: PRNGKeyArray) -> tuple[Float[Array, "P d"], PSOState]:
+        """The particles moved by their new velocities (kept in the returned state)."""
         x, v = state.population, state.velocity
         r1, r2 = uniform_blocks(key, x.shape[0], x.shape[1], x.shape[1])
         v = (
@@ -119,13 +113,16 @@ class PSO(AbstractStrategy):
         if self.v_max is not None:
             v = jnp.clip(v, -self.v_max, self.v_max)
         x, v = clip_at_walls(x + v, v)
+        return x, dataclasses.replace(state, velocity=v)
 
-        fitness = evaluate(fitness_fn, x)
+    def tell(self, state: PSOState, candidates: Float[Array, "P d"],
+             fitness: Float[Array, " P"]) -> PSOState:
+        """Personal and swarm bests updated; the particles stay where they moved."""
         improved = fitness < state.personal_best_fitness
-        pbest_x = jnp.where(improved[:, None], x, state.personal_best_x)
+        pbest_x = jnp.where(improved[:, None], candidates, state.personal_best_x)
         pbest_f = jnp.where(improved, fitness, state.personal_best_fitness)
-        best_x, best_fitness = update_best(state.best_x, state.best_fitness, x, fitness)
+        best_x, best_fitness = update_best(state.best_x, state.best_fitness, candidates, fitness)
         return PSOState(
-            x, fitness, best_x, best_fitness, state.generation + 1,
-            velocity=v, personal_best_x=pbest_x, personal_best_fitness=pbest_f,
+            candidates, fitness, best_x, best_fitness, state.generation + 1,
+            velocity=state.velocity, personal_best_x=pbest_x, personal_best_fitness=pbest_f,
         )
