@@ -82,9 +82,9 @@ if TYPE_CHECKING:  # what static tools see; at run time __getattr__ imports each
     )
     from jaxflex.drives import (
         DRIVES,
+        AbstractDrive,
         CommandDrive,
         CurrentDrive,
-        Drive,
         TorqueDrive,
         VoltageDrive,
     )
@@ -115,7 +115,7 @@ _SOURCES: dict[str, tuple[str, ...]] = {
         "DiscoveryReport", "add_effect", "discover", "load_example", "refit", "score_tests",
     ),
     "jaxflex.drives": (
-        "DRIVES", "CommandDrive", "CurrentDrive", "Drive", "TorqueDrive", "VoltageDrive",
+        "DRIVES", "CommandDrive", "CurrentDrive", "AbstractDrive", "TorqueDrive", "VoltageDrive",
     ),
     "jaxflex.effects": ("EFFECTS", "Effect", "get_effect", "library", "register_effect"),
     "jaxflex.frequency_response": ("frf", "mode_shapes", "natural_frequencies"),
@@ -169,7 +169,7 @@ __all__ = [
     "DesignResult",
     "Diagnosis",
     "DiscoveryReport",
-    "Drive",
+    "AbstractDrive",
     "Effect",
     "Fit",
     "Model",

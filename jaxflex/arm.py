@@ -71,7 +71,7 @@ from collections.abc import Iterable, Mapping
 from typing import Any
 
 from jaxflex._arguments import shown
-from jaxflex.drives import DRIVES, CommandDrive, Drive
+from jaxflex.drives import DRIVES, AbstractDrive, CommandDrive
 from jaxflex.effects import (
     ChannelEffect,
     DriveGain,
@@ -82,7 +82,7 @@ from jaxflex.effects import (
 )
 from jaxflex.model import Model
 from jaxflex.parameters import BASE_PARAMETERS, ParameterSpec
-from jaxflex.sensors import SENSORS, Sensor
+from jaxflex.sensors import SENSORS, AbstractSensor
 from jaxflex.testbed import Testbed, link_fault
 
 _BASE = {spec.name: spec for spec in BASE_PARAMETERS}
@@ -227,7 +227,9 @@ def _effects(top: _Table) -> tuple[Effect, ...]:
     return tuple(effects)
 
 
-def _gain_effect(where: str, sensor: Sensor, bounds: tuple[float, float, float]) -> SensorGain:
+def _gain_effect(
+    where: str, sensor: AbstractSensor, bounds: tuple[float, float, float]
+) -> SensorGain:
     """The ``sensor_gain`` effect that identifies a sensor's gain within its bounds (in the
     sensor's reading per quantity)."""
     reference, lower, upper = bounds
@@ -277,7 +279,7 @@ def arm_to_dict(model: Model) -> dict[str, Any]:
     return data
 
 
-def _sensor_dict(sensor: Sensor) -> dict[str, Any]:
+def _sensor_dict(sensor: AbstractSensor) -> dict[str, Any]:
     return {"type": sensor.kind} | {
         f.name: getattr(sensor, f.name) for f in dataclasses.fields(sensor)
     }
@@ -388,7 +390,7 @@ def _bounded(
     return reference, lower, upper
 
 
-def _drive(table: _Table) -> tuple[Drive, tuple[DriveGain, ...]]:
+def _drive(table: _Table) -> tuple[AbstractDrive, tuple[DriveGain, ...]]:
     """The drive named by ``type`` with its constants (all required), and the ``drive_gain``
     effect that identifies a command drive's torque per unit given with bounds."""
     kind = table.string("type")
@@ -427,15 +429,15 @@ def _command_drive(table: _Table) -> tuple[CommandDrive, tuple[DriveGain, ...]]:
 
 
 def _sensors(
-    top: _Table, length: float, drive: Drive
-) -> tuple[tuple[Sensor, ...], tuple[Effect, ...]]:
+    top: _Table, length: float, drive: AbstractDrive
+) -> tuple[tuple[AbstractSensor, ...], tuple[Effect, ...]]:
     """The ``[[sensors]]`` tables: ``type`` picks the class, the other keys are its fields; and
     the effects that identify each gain or offset given as a table of bounds. Each sensor logs
     its own channel, neither time nor the drive's input."""
     entries = top._get("sensors", [])
     if not isinstance(entries, list):
         raise top._wrong("sensors", "an array of tables ([[sensors]])", entries)
-    sensors: list[Sensor] = []
+    sensors: list[AbstractSensor] = []
     calibrations: list[Effect] = []
     for i, entry in enumerate(entries):
         table = _Table(entry, top.where, f"sensors[{i}].")
@@ -500,7 +502,7 @@ def _sensors(
     return tuple(sensors), tuple(calibrations)
 
 
-def _check_channel(table: _Table, sensors: list[Sensor], drive: Drive) -> None:
+def _check_channel(table: _Table, sensors: list[AbstractSensor], drive: AbstractDrive) -> None:
     """The last of ``sensors`` (read from ``table``) logs a channel of its own: not one an
     earlier sensor logs, not time, not the drive's input."""
     channel = sensors[-1].channel

@@ -10,7 +10,7 @@ the joint velocity. Three drives cover the rigs in the lab:
 * :class:`VoltageDrive` — a DC motor and gearbox driven by a voltage,
   ``τ = K_g η_g η_m k_t (V − K_g k_m θ')/R_m``. This is exactly a torque drive with input
   ``g·V`` plus a viscous friction ``g·K_g·k_m·θ'`` (``g = K_g η_g η_m k_t/R_m``), and it is
-  implemented so: the back-EMF is the drive's :attr:`~Drive.damping`;
+  implemented so: the back-EMF is the drive's :attr:`~AbstractDrive.damping`;
 * :class:`CommandDrive` — a raw command in the rig's own unit (PWM or DAC counts),
   ``τ = torque_per_unit · clip(u, ±saturation)``: the clip is applied to the logged command,
   as the amplifier saturates. The torque per unit is often not known; given with bounds in an
@@ -20,6 +20,7 @@ the joint velocity. Three drives cover the rigs in the lab:
 
 from __future__ import annotations
 
+import abc
 import dataclasses
 import math
 from typing import ClassVar
@@ -28,20 +29,24 @@ import equinox as eqx
 import jax.numpy as jnp
 from jaxtyping import Array, Float
 
+from jaxflex.registry import Registry
 
-class Drive(eqx.Module):
-    """Base class: ``τ = gain·signal − damping·θ'``; subclasses define gain and damping.
 
-    ``name`` is the drive's key in an arm file and also the record column it reads.
+class AbstractDrive(eqx.Module):
+    """What turns a record's input column into hub torque: ``τ = gain·signal − damping·θ'``.
+
+    Subclasses define :attr:`gain` (and :attr:`damping` where the drive adds one); ``name`` is
+    the drive's key in an arm file and also the record column it reads. Register a drive of
+    one's own with ``DRIVES.register`` to name it in arm files.
     """
 
     name: ClassVar[str] = "drive"
     unit: ClassVar[str] = ""
 
     @property
+    @abc.abstractmethod
     def gain(self) -> float:
         """Torque per unit of the input signal (N m per unit)."""
-        raise NotImplementedError
 
     @property
     def damping(self) -> float:
@@ -57,13 +62,13 @@ class Drive(eqx.Module):
         return {f.name: getattr(self, f.name) for f in dataclasses.fields(self)}
 
 
-def _positive(drive: Drive) -> None:
+def _positive(drive: AbstractDrive) -> None:
     for name, value in drive.settings().items():
         if not (isinstance(value, (int, float)) and math.isfinite(value) and value > 0):
             raise ValueError(f"{drive.name} drive: {name}={value!r} must be a positive number")
 
 
-class TorqueDrive(Drive):
+class TorqueDrive(AbstractDrive):
     """The input is the hub torque itself (N m)."""
 
     name: ClassVar[str] = "torque"
@@ -77,7 +82,7 @@ class TorqueDrive(Drive):
         return signal
 
 
-class CurrentDrive(Drive):
+class CurrentDrive(AbstractDrive):
     """A current-mode amplifier: ``τ = torque_per_amp · i``."""
 
     name: ClassVar[str] = "current"
@@ -92,7 +97,7 @@ class CurrentDrive(Drive):
         return self.torque_per_amp
 
 
-class VoltageDrive(Drive):
+class VoltageDrive(AbstractDrive):
     """A DC motor and gearbox: ``τ = K_g η_g η_m k_t (V − K_g k_m θ')/R_m``."""
 
     name: ClassVar[str] = "voltage"
@@ -124,7 +129,7 @@ class VoltageDrive(Drive):
         return self.gain * self.gear_ratio * self.back_emf_constant
 
 
-class CommandDrive(Drive):
+class CommandDrive(AbstractDrive):
     """A raw command (PWM or DAC counts): ``τ = torque_per_unit · clip(u, ±saturation)``.
 
     ``unit`` is the command's unit as the rig logs it (``"counts"``), shown in reports;
@@ -168,18 +173,13 @@ class CommandDrive(Drive):
         return values | ({} if self.saturation is None else {"saturation": self.saturation})
 
 
-DRIVES: dict[str, type[Drive]] = {
-    d.name: d for d in (TorqueDrive, CurrentDrive, VoltageDrive, CommandDrive)
-}
+DRIVES: Registry[AbstractDrive] = Registry(
+    "drive", AbstractDrive, key=lambda cls: cls.name,
+    classes=(TorqueDrive, CurrentDrive, VoltageDrive, CommandDrive),
+)
 """Drive name (the record column it reads) → class."""
 
 
-def get_drive(name: str, **settings: float) -> Drive:
+def get_drive(name: str, **settings: float) -> AbstractDrive:
     """A drive by name with its constants, e.g. ``get_drive("current", torque_per_amp=8.925)``."""
-    if name not in DRIVES:
-        raise ValueError(f"unknown drive {name!r}; drives: {sorted(DRIVES)}")
-    known = {f.name for f in dataclasses.fields(DRIVES[name])}
-    unknown = sorted(set(settings) - known)
-    if unknown:
-        raise ValueError(f"{name} drive: unknown setting(s) {unknown}; settings: {sorted(known)}")
-    return DRIVES[name](**settings)
+    return DRIVES.create(name, **settings)

@@ -28,14 +28,14 @@ from jaxflex.metrics import nrmse
 from jaxflex.model import Model
 from jaxflex.objective import check_inputs, fitted_channels
 from jaxflex.rest import REST_SPAN, rest_bands, why_not_at_rest
-from jaxflex.sensors import DeflectionSensor, Sensor, StrainGauge, calibrated, readings
+from jaxflex.sensors import AbstractSensor, DeflectionSensor, StrainGauge, calibrated, readings
 from jaxflex.simulation import simulate
 
 Window = tuple[float, float] | None
 """``(t0, t1)`` in a record's own time (seconds), or None for the whole record."""
 
 
-def logged_sensors(model: Model, record: Record) -> tuple[Sensor, ...]:
+def logged_sensors(model: Model, record: Record) -> tuple[AbstractSensor, ...]:
     """The rig's sensors whose channels ``record`` holds (at least one, else a one-line error)."""
     found = tuple(s for s in model.sensors if s.channel in record.columns)
     if not found:
@@ -79,7 +79,7 @@ MAX_DEFLECTION_ANGLE = 1.0
 """A link deflection angle above 1 rad is no small deflection: mrad or degrees."""
 
 
-def _check_scale(model: Model, name: str, sensor: Sensor, reading: np.ndarray) -> None:
+def _check_scale(model: Model, name: str, sensor: AbstractSensor, reading: np.ndarray) -> None:
     """Stop (one-line ValueError) on a link reading no elastic link gives in the sensor's unit:
     a deflection longer than the link, a strain above :data:`MAX_STRAIN`, a deflection angle
     above :data:`MAX_DEFLECTION_ANGLE`: the channel is logged in another unit."""

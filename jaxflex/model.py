@@ -20,11 +20,11 @@ import numpy as np
 from jaxtyping import Array
 
 from jaxflex._arguments import shown
-from jaxflex.drives import Drive, TorqueDrive
+from jaxflex.drives import AbstractDrive, TorqueDrive
 from jaxflex.effects._base import Effect, Structure, joint_friction
 from jaxflex.fem import BeamPatterns
 from jaxflex.parameters import BASE_PARAMETERS, ParameterSpace, ParameterSpec, Params
-from jaxflex.sensors import Sensor
+from jaxflex.sensors import AbstractSensor
 from jaxflex.stations import beam_rows
 from jaxflex.testbed import Testbed
 
@@ -52,10 +52,10 @@ class Model(eqx.Module):
     effects: tuple[Effect, ...] = ()
     n_substeps: int = eqx.field(static=True, default=2)
     base: tuple[ParameterSpec, ...] = eqx.field(static=True, default=BASE_PARAMETERS)
-    drive: Drive = TorqueDrive()
+    drive: AbstractDrive = TorqueDrive()
     stations: tuple[float, ...] = eqx.field(static=True, default=())
     n_modes: int | None = eqx.field(static=True, default=None)
-    sensors: tuple[Sensor, ...] = eqx.field(static=True, default=())
+    sensors: tuple[AbstractSensor, ...] = eqx.field(static=True, default=())
     fixed: tuple[str, ...] = eqx.field(static=True, default=())
     name: str = eqx.field(static=True, default="reference")
     description: str = eqx.field(static=True, default=REFERENCE_DESCRIPTION)
@@ -66,8 +66,8 @@ class Model(eqx.Module):
         if not isinstance(self.testbed, Testbed):
             raise TypeError(f"testbed must be a Testbed (e.g. Testbed(length=0.4)), got "
                             f"{shown(self.testbed)}")
-        if not isinstance(self.drive, Drive):
-            raise TypeError(f"drive must be a Drive (e.g. VoltageDrive(...)), got "
+        if not isinstance(self.drive, AbstractDrive):
+            raise TypeError(f"drive must be a drive (e.g. VoltageDrive(...)), got "
                             f"{shown(self.drive)}")
         for field, example in (("sensors", "(Encoder(),)"), ("effects", "(Payload(),)")):
             value = getattr(self, field)
@@ -78,8 +78,8 @@ class Model(eqx.Module):
         self.sensors = tuple(self.sensors)
         self.fixed = tuple(self.fixed)
         for sensor in self.sensors:  # checked here: a station needs a position
-            if not isinstance(sensor, Sensor):
-                raise TypeError(f"sensors must be Sensor instances, got {shown(sensor)}")
+            if not isinstance(sensor, AbstractSensor):
+                raise TypeError(f"sensors must be sensors (e.g. Encoder()), got {shown(sensor)}")
         positions = {s.position for s in self.sensors if s.position is not None}
         self.stations = tuple(sorted(set(self.stations) | positions))
 
@@ -151,7 +151,7 @@ class Model(eqx.Module):
         """The channels the rig's sensors log (empty for a rig fitted on the outputs)."""
         return tuple(s.channel for s in self.sensors)
 
-    def sensor(self, channel: str) -> Sensor:
+    def sensor(self, channel: str) -> AbstractSensor:
         """The sensor that logs ``channel``."""
         for s in self.sensors:
             if s.channel == channel:

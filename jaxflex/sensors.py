@@ -15,8 +15,9 @@ at those *stations* (:mod:`jaxflex.stations`) as linear maps of its modal state.
 * :class:`DeflectionSensor` at ``x`` — ``w(x)`` in the hub frame (a tip laser, a camera).
 
 A rig (:class:`~jaxflex.model.Model`) holds its sensors; a simulation of it gives each sensor's
-:meth:`~Sensor.reading` under the sensor's channel name (``outputs.channel("tip_acc")``). The
-reading is taken relative to rest, ``gain · quantity``: a logged record is re-zeroed at rest
+:meth:`~AbstractSensor.reading` under the sensor's channel name
+(``outputs.channel("tip_acc")``). The reading is taken relative to rest, ``gain · quantity``: a
+logged record is re-zeroed at rest
 (:mod:`jaxflex.measured`), which removes the offset. A calibration that is not known is an effect
 on the readings (``sensor_gain``, ``sensor_offset`` in :mod:`jaxflex.effects`), identified with
 the physical parameters: :func:`calibrated` applies it to a simulation's outputs.
@@ -24,6 +25,7 @@ the physical parameters: :func:`calibrated` applies it to a simulation's outputs
 
 from __future__ import annotations
 
+import abc
 import math
 from collections.abc import Mapping, Sequence
 from typing import TYPE_CHECKING, ClassVar
@@ -33,14 +35,17 @@ import numpy as np
 from jaxtyping import Array, Float
 
 from jaxflex.parameters import Params
+from jaxflex.registry import Registry
 
 if TYPE_CHECKING:
     from jaxflex.model import Model
     from jaxflex.simulation import Outputs
 
 
-class Sensor(eqx.Module):
-    """Base class: one record channel, its calibration (gain, offset) and noise model.
+class AbstractSensor(eqx.Module):
+    """One record channel: the quantity it responds to, its calibration (gain, offset) and
+    noise model. Subclasses define :meth:`quantity`; register one of one's own with
+    ``SENSORS.register`` to name it in arm files.
 
     ``resolution`` is the quantisation step of the logged values (0: none) and ``noise`` the
     standard deviation of white measurement noise, both in the channel's units. ``rezero``:
@@ -94,9 +99,9 @@ class Sensor(eqx.Module):
         """Position along the link (m from the clamp), or None for a joint sensor."""
         return None
 
+    @abc.abstractmethod
     def quantity(self, model: Model, outputs: Outputs) -> Float[Array, "*batch n"]:
         """The physical quantity the sensor responds to, from a simulation of ``model``."""
-        raise NotImplementedError
 
     def reading(self, model: Model, outputs: Outputs) -> Float[Array, "*batch n"]:
         """The reading relative to rest, ``gain · quantity``, from a simulation of ``model``
@@ -140,7 +145,7 @@ class Sensor(eqx.Module):
         return model.stations.index(self.position)
 
 
-class Encoder(Sensor):
+class Encoder(AbstractSensor):
     """Joint angle (rad) from an incremental encoder of ``counts_per_revolution``.
 
     Its resolution is one count, ``2π/counts_per_revolution``, unless given (0: ideal).
@@ -168,7 +173,7 @@ class Encoder(Sensor):
         return "joint_angle", 1.0
 
 
-class Tachometer(Sensor):
+class Tachometer(AbstractSensor):
     """Joint velocity (rad/s)."""
 
     kind: ClassVar[str] = "tachometer"
@@ -182,7 +187,7 @@ class Tachometer(Sensor):
         return "joint_velocity", 1.0
 
 
-class _LinkSensor(Sensor):
+class _LinkSensor(AbstractSensor):
     """A sensor on the link at ``x`` metres from the clamp."""
 
     x: float = 0.0
@@ -271,9 +276,10 @@ class DeflectionSensor(_StationSensor):
     tip_output: ClassVar[str] = "tip_deflection"
 
 
-SENSORS: dict[str, type[Sensor]] = {
-    s.kind: s for s in (Encoder, Tachometer, StrainGauge, Accelerometer, DeflectionSensor)
-}
+SENSORS: Registry[AbstractSensor] = Registry(
+    "sensor", AbstractSensor, key=lambda cls: cls.kind,
+    classes=(Encoder, Tachometer, StrainGauge, Accelerometer, DeflectionSensor),
+)
 """Sensor kind (its ``type`` in an arm file) → class."""
 
 
@@ -311,6 +317,6 @@ def readings(
     return {c: own[c] for c in model.channels if channels is None or c in channels}
 
 
-def noise_levels(sensors: Sequence[Sensor]) -> Mapping[str, float]:
+def noise_levels(sensors: Sequence[AbstractSensor]) -> Mapping[str, float]:
     """Each channel's measurement-noise standard deviation (white noise and quantisation)."""
     return {s.channel: s.noise_std for s in sensors}

@@ -222,7 +222,7 @@ def own_effect(monkeypatch):
     """The user's effect registered by name, for this test only (the registry is restored)."""
     import jaxflex.effects
 
-    monkeypatch.setattr(jaxflex.effects, "EFFECTS", dict(jaxflex.effects.EFFECTS))
+    monkeypatch.setattr(jaxflex.effects, "EFFECTS", jaxflex.effects.EFFECTS.copy())
     assert register_effect(_HubSpring) is _HubSpring
     assert jaxflex.effects.get_effect("hub_spring") == _HubSpring()
 

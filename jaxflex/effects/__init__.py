@@ -25,44 +25,34 @@ from jaxflex.effects.sensor_gain import SensorGain
 from jaxflex.effects.sensor_offset import SensorOffset
 from jaxflex.effects.stribeck import Stribeck
 from jaxflex.effects.torque_offset import TorqueOffset
+from jaxflex.registry import Registry
 
 
-def _collect() -> dict[str, type[Effect]]:
-    """Effect classes defined in this package's public modules, by name."""
-    found: dict[str, type[Effect]] = {}
+def _collect() -> list[type[Effect]]:
+    """Effect classes defined in this package's public modules."""
+    found = []
     for info in sorted(pkgutil.iter_modules(__path__), key=lambda m: m.name):
         if info.name.startswith("_"):
             continue
         module = importlib.import_module(f"{__name__}.{info.name}")
-        for _, cls in inspect.getmembers(module, inspect.isclass):
-            if issubclass(cls, Effect) and cls.__module__ == module.__name__:
-                if cls.name in found:
-                    raise RuntimeError(
-                        f"effect name {cls.name!r} is used by {found[cls.name].__name__} "
-                        f"and {cls.__name__}"
-                    )
-                found[cls.name] = cls
+        found += [cls for _, cls in inspect.getmembers(module, inspect.isclass)
+                  if issubclass(cls, Effect) and cls.__module__ == module.__name__]
     return found
 
 
-EFFECTS: dict[str, type[Effect]] = _collect()
-"""Effect name → class, for every effect in the library."""
+def _effect_name(cls: type[Effect]) -> str:
+    return cls.key if issubclass(cls, ChannelEffect) else cls.name
+
+
+EFFECTS: Registry[Effect] = Registry("effect", Effect, key=_effect_name, classes=_collect())
+"""Effect name → class, for every effect in the library (and those registered)."""
 
 
 def register_effect(cls: type[Effect]) -> type[Effect]:
     """Add a user-defined effect class to :data:`EFFECTS` under its ``name`` (also as a class
     decorator), so that arm files, fit files and discovery can name it like the library's own.
     """
-    if not (isinstance(cls, type) and issubclass(cls, Effect)):
-        raise TypeError(f"register_effect takes an Effect subclass, got {cls!r}")
-    name = cls.key if issubclass(cls, ChannelEffect) else cls.name
-    if not (isinstance(name, str) and name.isidentifier()):
-        raise ValueError(f"effect class {cls.__name__} needs a name (an identifier), "
-                         f"got {name!r}")
-    if EFFECTS.get(name, cls) is not cls:
-        raise ValueError(f"effect name {name!r} is taken by {EFFECTS[name].__name__}")
-    EFFECTS[name] = cls
-    return cls
+    return EFFECTS.register(cls)
 
 
 def get_effect(name: str, **kwargs) -> Effect:
@@ -71,7 +61,7 @@ def get_effect(name: str, **kwargs) -> Effect:
     key, sep, channel = name.partition(":")
     if key not in EFFECTS:
         raise ValueError(f"unknown effect {name!r}; known effects: {sorted(EFFECTS)}")
-    cls = EFFECTS[key]
+    cls = EFFECTS.lookup(key)
     if sep:
         if not issubclass(cls, ChannelEffect):
             raise ValueError(f"effect {key!r} acts on no channel: name it {key!r}, not {name!r}")

@@ -19,9 +19,13 @@ from jaxflex.evolve._base import AbstractStrategy, EvolutionResult, State, run, 
 from jaxflex.evolve.de import DE
 from jaxflex.evolve.ga import GA
 from jaxflex.evolve.pso import PSO, PSOState
+from jaxflex.registry import Registry
 
-STRATEGIES: dict[str, type[AbstractStrategy]] = {"de": DE, "ga": GA, "pso": PSO}
-"""The evolutionary strategies by name."""
+STRATEGIES: Registry[AbstractStrategy] = Registry(
+    "strategy", AbstractStrategy, key=lambda cls: cls.name.lower(), classes=(DE, GA, PSO),
+    plural="strategies",
+)
+"""The evolutionary strategies by name (lower case); ``STRATEGIES.register`` adds one."""
 PRESETS = ("paper", "default")
 """Named settings of every strategy: the paper's, or jaxflex's defaults."""
 
@@ -33,9 +37,7 @@ def get_strategy(name: str, preset: str = "paper", **overrides: Any) -> Abstract
     for DE and GA; constriction coefficients for PSO); ``overrides`` replace single fields,
     e.g. ``get_strategy("de", population=40, variant="best1bin")``.
     """
-    cls = STRATEGIES.get(str(name).lower())
-    if cls is None:
-        raise ValueError(f"unknown strategy {name!r}; valid names are {sorted(STRATEGIES)}")
+    cls = STRATEGIES.lookup(str(name).lower())
     if preset not in PRESETS:
         raise ValueError(f"unknown preset {preset!r}; valid presets are {list(PRESETS)}")
     valid = {f.name for f in dataclasses.fields(cls)}

@@ -253,8 +253,9 @@ class AbstractStrategy(eqx.Module):
 
     @classmethod
     def paper(cls, **overrides: Any) -> AbstractStrategy:
-        """The settings of the paper, optionally with some fields overridden."""
-        raise NotImplementedError
+        """The settings of the paper, optionally with some fields overridden (a strategy the
+        paper did not use: its defaults)."""
+        return cls(**overrides)
 
 
 # --------------------------------------------------------------------------- runner
