@@ -23,6 +23,11 @@ def finite_float(value: object, name: str, *, minimum: float | None = None,
     return x
 
 
+def positive(value: object, name: str) -> float:
+    """``value`` as a finite float above zero; the error message names the argument ``name``."""
+    return finite_float(value, name, minimum=0.0, strict=True)
+
+
 def shown(value: object) -> str:
     """``value`` as an error message shows a wrong argument: ``123 (int)``, ``None``."""
     return "None" if value is None else f"{value!r} ({type(value).__name__})"

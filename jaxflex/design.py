@@ -46,6 +46,7 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, ArrayLike, Float
 
+from jaxflex._arguments import positive
 from jaxflex._progress import Progress
 from jaxflex.data import Record
 from jaxflex.model import Model
@@ -374,12 +375,6 @@ class DesignResult:
         )
 
 
-def _positive(value: float, name: str) -> float:
-    if not (isinstance(value, (int, float, np.floating)) and math.isfinite(value) and value > 0):
-        raise ValueError(f"{name} must be a positive number, got {value!r}")
-    return float(value)
-
-
 def design_input(
     model: Model | None = None,
     params: Mapping[str, ArrayLike] | None = None,
@@ -420,13 +415,13 @@ def design_input(
     channels, sigmas = _check_noise(noise)
     if criterion not in CRITERIA:
         raise ValueError(f"criterion={criterion!r}: choose one of {list(CRITERIA)}")
-    dt = model.testbed.dt if dt is None else _positive(dt, "dt")
-    duration = _positive(duration, "duration")
+    dt = model.testbed.dt if dt is None else positive(dt, "dt")
+    duration = positive(duration, "duration")
     limits = {
-        "peak_torque": _positive(max_torque, "max_torque"),
-        "rms_torque": _positive(rms_torque, "rms_torque"),
-        "max_angle": _positive(max_angle, "max_angle"),
-        "max_speed": _positive(max_speed, "max_speed"),
+        "peak_torque": positive(max_torque, "max_torque"),
+        "rms_torque": positive(rms_torque, "rms_torque"),
+        "max_angle": positive(max_angle, "max_angle"),
+        "max_speed": positive(max_speed, "max_speed"),
     }
     if limits["rms_torque"] > limits["peak_torque"]:
         raise ValueError(
@@ -434,7 +429,7 @@ def design_input(
             "cannot exceed its peak"
         )
     if harmonics is None:
-        harmonics = int(math.floor(_positive(max_frequency, "max_frequency") * duration + 1e-9))
+        harmonics = int(math.floor(positive(max_frequency, "max_frequency") * duration + 1e-9))
     if not (isinstance(harmonics, (int, np.integer)) and 1 <= harmonics < duration / (2 * dt)):
         raise ValueError(
             f"harmonics={harmonics!r} must be an int >= 1 below the Nyquist frequency "
@@ -556,7 +551,7 @@ def paper_inputs(
     rms_torque: float, duration: float = 2.0, dt: float = 1e-3
 ) -> dict[str, Float[np.ndarray, " n"]]:
     """The paper's triangular, pulse and half-sine torques, each scaled to ``rms_torque``."""
-    rms_torque = _positive(rms_torque, "rms_torque")
+    rms_torque = positive(rms_torque, "rms_torque")
     inputs = {}
     for name in PAPER_INPUTS:
         _, torque = reference_input(name, duration=duration, dt=dt)

@@ -18,7 +18,7 @@ from jaxtyping import Float
 from numpy.typing import ArrayLike
 from scipy import signal
 
-from jaxflex._arguments import finite_float
+from jaxflex._arguments import finite_float, positive
 from jaxflex.data import Record, RecordWarning, resample_columns
 
 _MIN_QUIET_SAMPLES = 10
@@ -32,8 +32,8 @@ def butter_lowpass(order: int, cutoff_hz: float, fs: float) -> Float[np.ndarray,
     ``(b, a)`` form loses digits; filter with ``scipy.signal.sosfiltfilt`` or :func:`lowpass`.
     """
     order = _positive_int(order, "order")
-    fs = _positive(fs, "fs")
-    cutoff_hz = _positive(cutoff_hz, "cutoff_hz")
+    fs = positive(fs, "fs")
+    cutoff_hz = positive(cutoff_hz, "cutoff_hz")
     if not cutoff_hz < fs / 2:
         raise ValueError(
             f"cutoff_hz={cutoff_hz!r} must be below the Nyquist frequency fs/2 = {fs / 2!r} Hz"
@@ -99,7 +99,7 @@ def differentiate(
     stencils at the two ends. With ``smooth_hz`` the signal is first zero-phase low-passed
     (Butterworth, order 4), which differentiation of noisy or quantised data needs.
     """
-    dt = _positive(dt, "dt")
+    dt = positive(dt, "dt")
     if order not in (1, 2) or isinstance(order, bool):
         raise ValueError(f"order={order!r} must be 1 (velocity) or 2 (acceleration)")
     x = _finite(x, "x")
@@ -142,7 +142,7 @@ def resample(record: Record, dt: float) -> Record:
     says so): low-pass first.
     """
     _check_record(record)
-    dt = _positive(dt, "dt")
+    dt = positive(dt, "dt")
     if dt > record.duration:
         raise ValueError(f"dt={dt!r} s exceeds the record duration {record.duration!r} s")
     if dt > record.dt * (1 + 1e-9):
@@ -243,10 +243,6 @@ def _to_last(x: np.ndarray, axis: int) -> np.ndarray:
         return np.moveaxis(x, axis, -1)
     except (ValueError, IndexError, TypeError):
         raise ValueError(f"axis={axis!r} is not an axis of x (shape {x.shape})") from None
-
-
-def _positive(value: object, name: str) -> float:
-    return finite_float(value, name, minimum=0.0, strict=True)
 
 
 def _nonnegative(value: object, name: str) -> float:

@@ -5,6 +5,8 @@ from __future__ import annotations
 import numpy as np
 from jaxtyping import Float
 
+from jaxflex._arguments import positive
+
 REFERENCE_AMPLITUDES: dict[str, float] = {"triangular": 0.49, "pulse": 0.25, "half_sine": 0.39}
 """Reference inputs of the testbed: shape name → default amplitude (N m), on 0 ≤ t < 0.3 s."""
 REFERENCE_WIDTH = 0.3
@@ -17,7 +19,7 @@ INPUT_NAMES: tuple[str, ...] = (*REFERENCE_AMPLITUDES, *EXCITATION_AMPLITUDES)
 
 def time_grid(duration: float = 2.0, dt: float = 1e-3) -> Float[np.ndarray, " n"]:
     """Sample instants ``0, dt, …, duration`` (both ends included)."""
-    _check_positive(duration=duration, dt=dt)
+    duration, dt = positive(duration, "duration"), positive(dt, "dt")
     n = int(round(duration / dt)) + 1
     return np.arange(n) * dt
 
@@ -45,7 +47,7 @@ def chirp(t, amplitude: float = 0.05, f0: float = 0.5, f1: float = 20.0, duratio
     """Linear chirp from ``f0`` to ``f1`` Hz over ``duration`` (default: the whole grid)."""
     t = np.asarray(t, dtype=np.float64)
     duration = float(t[-1]) if duration is None else duration
-    _check_positive(duration=duration, f1=f1)
+    duration, f1 = positive(duration, "duration"), positive(f1, "f1")
     phase = 2.0 * np.pi * (f0 * t + 0.5 * (f1 - f0) / duration * t**2)
     return amplitude * np.sin(phase)
 
@@ -103,7 +105,3 @@ def reference_input(
     return t, _SHAPES[name](t, amplitude)
 
 
-def _check_positive(**values: float) -> None:
-    for name, value in values.items():
-        if not (np.isfinite(value) and value > 0):
-            raise ValueError(f"{name} must be positive, got {value!r}")
