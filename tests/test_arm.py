@@ -51,7 +51,7 @@ def test_rotflex_arm_file_holds_the_rig_constants():
     tb = arm.testbed
     assert (tb.length, tb.width, tb.thickness, tb.density) == (0.419, 0.02083, 0.0008128, 7850.0)
     assert isinstance(arm.drive, VoltageDrive)
-    # the README's numbers: tau = 0.1284 V - 0.0690 theta'
+    # the arm file's drive: tau = 0.1284 V - 0.0690 theta'
     assert arm.drive.gain == pytest.approx(0.1284, abs=5e-5)
     assert arm.drive.damping == pytest.approx(0.0690, abs=5e-5)
     space = arm.space
