@@ -37,8 +37,7 @@ lint: $(VENV)/.stamp-dev
 	$(PY) -m ruff check jaxflex tests benchmarks notebooks/execute.py docs
 
 # Workers, notebook kernels and subprocesses share compiled programs through JAX's on-disk
-# cache (measured: the suite from a fresh clone 474 s without it, 413 s with it). The strict
-# documentation build runs first: a broken reference fails the tests.
+# cache. The strict documentation build runs first: a broken reference fails the tests.
 test: $(VENV)/.stamp-dev lint docs
 	$(TEST_ENV) $(PY) -m pytest -n $(PYTEST_WORKERS) --dist worksteal -m "not slow" tests
 

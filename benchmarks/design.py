@@ -53,9 +53,9 @@ from jaxflex.design import (  # noqa: E402
     paper_inputs,
 )
 from jaxflex.evolve import get_strategy, run  # noqa: E402
+from jaxflex.least_squares import dense_jacobian  # noqa: E402
 from jaxflex.model import Model  # noqa: E402
 from jaxflex.objective import build_objective  # noqa: E402
-from jaxflex.refine import dense_jacobian  # noqa: E402
 from jaxflex.rigid import estimate_rigid, warm_start  # noqa: E402
 from jaxflex.signals import time_grid  # noqa: E402
 from jaxflex.simulation import simulate, simulate_core  # noqa: E402

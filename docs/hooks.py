@@ -1,7 +1,8 @@
 """MkDocs hooks: the API reference must document every public name, its overview table is
 generated from ``jaxflex.__all__``, the command-line page shows each command's ``--help``
-(generated from the parser) and the effects page the rules of discover's claims (from
-``jaxflex.discovery.explain.RULES``), so that none goes stale.
+(generated from the parser), the effects page the rules of discover's claims (from
+``jaxflex.discovery.explain.RULES``) and every measured figure comes from its results file
+(``docs/benchmark_tables.py``), so that none goes stale.
 
 A public name is one listed in ``__all__`` of ``jaxflex`` or of any public module or subpackage
 (or, for a module without ``__all__``, any name it defines without a leading underscore). Each
@@ -12,6 +13,7 @@ missing one is a warning, so ``mkdocs build --strict`` fails.
 from __future__ import annotations
 
 import argparse
+import importlib.util
 import logging
 import os
 import re
@@ -19,6 +21,7 @@ import sys
 from pathlib import Path
 
 import griffe
+from mkdocs.structure.files import File
 
 log = logging.getLogger("mkdocs.hooks.jaxflex")
 BLOCK = re.compile(r"^:::\s+([\w.]+)", re.M)
@@ -29,6 +32,18 @@ RULES_MARKER = "<!-- discover claim rules -->"
 HELP_WIDTH = "100"
 
 _package: griffe.Module | None = None
+
+
+def _load_benchmark_tables():
+    """``docs/benchmark_tables.py``, loaded by path (``docs`` is no package)."""
+    path = Path(__file__).with_name("benchmark_tables.py")
+    spec = importlib.util.spec_from_file_location("jaxflex_docs_benchmark_tables", path)
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
+benchmark_tables = _load_benchmark_tables()
 
 
 def on_config(config):
@@ -57,6 +72,15 @@ def on_config(config):
     return config
 
 
+def on_files(files, config):
+    """The figures the benchmarks draw (``benchmarks/results/*.png``) served under ``assets/``,
+    so that a page shows the file the benchmark wrote, not a copy."""
+    root = Path(config.config_file_path).parent
+    for figure in sorted((root / "benchmarks" / "results").glob("*.png")):
+        files.append(File.generated(config, f"assets/{figure.name}", abs_src_path=str(figure)))
+    return files
+
+
 def on_page_markdown(markdown, page, config, files):
     if OVERVIEW_MARKER in markdown:
         markdown = markdown.replace(OVERVIEW_MARKER, _overview())
@@ -64,7 +88,7 @@ def on_page_markdown(markdown, page, config, files):
         markdown = markdown.replace(COMMANDS_MARKER, _commands())
     if RULES_MARKER in markdown:
         markdown = markdown.replace(RULES_MARKER, _claim_rules())
-    return markdown
+    return benchmark_tables.fill_values(benchmark_tables.fill_tables(markdown))
 
 
 def _claim_rules() -> str:

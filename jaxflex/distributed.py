@@ -94,8 +94,7 @@ def start(processes: int | None, process_id: int | None, coordinator: str | None
         # Open the connections between the processes' devices now, while the group is in
         # step: opening them waits only 30 s for the slowest process, and the first program
         # of a search may finish compiling minutes apart on busy hosts; once open, a
-        # collective waits as long as it takes (measured: 45 s of skew, jax 0.10.2, CPU
-        # collectives over Gloo).
+        # collective waits as long as it takes.
         from jax.experimental import multihost_utils
 
         multihost_utils.sync_global_devices("jaxflex: group started")

@@ -12,7 +12,7 @@
 The search follows the paper (DE, GA or PSO with its settings, in the unit box, every generation
 one batched evaluation of the whole population, :mod:`jaxflex.evolve`); the best candidate (or the
 best few) is refined by :func:`jaxflex.refine.refine`, kept only if the cost fell, and the
-uncertainty of the result is estimated by :func:`jaxflex.refine.uncertainty`.
+uncertainty of the result is estimated by :func:`jaxflex.intervals.uncertainty`.
 """
 
 from __future__ import annotations
@@ -34,9 +34,10 @@ from jaxflex._progress import stage
 from jaxflex.arm import MAX_ELEMENTS
 from jaxflex.diagnosis import Noise, noise_levels
 from jaxflex.evolve import STRATEGIES, get_strategy, run
+from jaxflex.intervals import uncertainty
 from jaxflex.model import Model
 from jaxflex.objective import Objective, Records, build_objective, check_records
-from jaxflex.refine import Refinement, uncertainty
+from jaxflex.refine import Refinement
 from jaxflex.refine import refine as refine_parameters
 from jaxflex.testbed import Testbed
 
@@ -120,7 +121,7 @@ class Fit:
     ``robust_intervals`` (HAC, from the residuals themselves) hold without that, and
     ``residual_checks`` says whether the residuals are white and whether the nominal intervals
     are therefore only conditional on the model (:attr:`model_conditional`; see
-    :func:`jaxflex.refine.uncertainty`). ``unidentifiable`` names parameters whose interval is
+    :func:`jaxflex.intervals.uncertainty`). ``unidentifiable`` names parameters whose interval is
     infinite or spans decades: not identifiable from these records. Fit files written before
     these fields existed load with them empty.
     """

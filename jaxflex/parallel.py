@@ -33,12 +33,11 @@ of a share with other instructions, which may round a last candidate differently
 vectors every candidate rounds alike whatever the share's size."""
 BLOCK = 104
 """Candidates one device simulates at once; larger shares run block after block (``lax.map``),
-which keeps the working set in cache (measured on the CPU: about 100 at a time is ~20 % faster per
-candidate than 500 at once)."""
+which keeps the working set in cache: about 100 at a time run faster per candidate than 500
+at once."""
 MIN_PER_DEVICE = 16
 """Smaller populations are not split: below it, waiting for the other devices costs more than
-their help (measured on 2 cores: 10 candidates run 25 % slower split in two, 100 run
-35–40 % faster)."""
+their help."""
 _AXIS = "population"
 
 _T = TypeVar("_T")

@@ -1,22 +1,18 @@
-"""Shared test set-up: float64 JAX, the independent reference solver importable by name, and
-the real-rig records as CSV files."""
+"""Shared test set-up: float64 JAX before any test builds arrays, and the real-rig records as
+CSV files. What test modules share by import lives in ``helpers.py``."""
 
-import sys
 from pathlib import Path
 
 import pytest
+from helpers import REAL_DATA_DIR
 
 import jaxflex  # noqa: F401  (enables float64 before any test builds arrays)
-
-sys.path.insert(0, str(Path(__file__).parent))
 
 
 @pytest.fixture(scope="session")
 def rotflex_csv(tmp_path_factory) -> Path:
     """A folder with the ROTFLEX runs written as CSV (``jaxflex datasets get``); the test skips
     where the data cannot be had (no ``JAXFLEX_DATA_DIR`` copy and no network)."""
-    from test_datasets import REAL_DATA_DIR
-
     from jaxflex import datasets
 
     out = tmp_path_factory.mktemp("rotflex")

@@ -6,6 +6,8 @@ from __future__ import annotations
 
 import functools
 
+from helpers import ARMS, REAL_DATA_DIR, or_skip
+
 from jaxflex.diagnosis import NoiseLevel
 from jaxflex.effects import get_effect
 from jaxflex.model import Model
@@ -42,15 +44,12 @@ def one(name: str, value: float, **kwargs):
 def rotflex_report():
     """``discover`` on the real ROTFLEX square wave, held out on run 985, through the rig's
     sensors (DE 10 × 20, one step); computed once per process (the test skips without data)."""
-    from test_arm import ARMS
-    from test_datasets import REAL_DATA_DIR, _or_skip
-
     from jaxflex import datasets
     from jaxflex.arm import load_arm
     from jaxflex.discovery import discover
     from jaxflex.measured import fit_noise, model_record
 
-    runs = _or_skip(datasets.load, "quanser_rotflex", REAL_DATA_DIR)
+    runs = or_skip(datasets.load, "quanser_rotflex", REAL_DATA_DIR)
     arm = load_arm(ARMS / "quanser_rotflex.toml")
     square = runs["square_wave"]
     return discover(

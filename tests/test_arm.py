@@ -8,19 +8,18 @@ from typing import ClassVar
 import equinox as eqx
 import numpy as np
 import pytest
+from helpers import ARMS, REFERENCE_ARM, arm_text
 
 from jaxflex import Model, identify, make_records, reference_parameters, simulate
 from jaxflex.arm import ArmError, arm_from_dict, arm_to_dict, arm_to_toml, load_arm
 from jaxflex.drives import VoltageDrive
 from jaxflex.effects import Effect, SensorGain, register_effect
 from jaxflex.parameters import ParameterSpec
-from jaxflex.rigs import arm_path
 from jaxflex.sensors import Accelerometer, DeflectionSensor, Encoder, StrainGauge, Tachometer
 from jaxflex.signals import reference_input
 from jaxflex.simulation import OUTPUT_NAMES
 
-ARMS = arm_path("reference").parent  # the packaged arm files (jaxflex/rigs)
-REFERENCE = ARMS / "reference.toml"
+REFERENCE = REFERENCE_ARM
 BED = Model().testbed  # the reference testbed
 
 
@@ -52,25 +51,12 @@ def test_rotflex_arm_file_holds_the_rig_constants():
     tb = arm.testbed
     assert (tb.length, tb.width, tb.thickness, tb.density) == (0.419, 0.02083, 0.0008128, 7850.0)
     assert isinstance(arm.drive, VoltageDrive)
-    # the README's numbers: tau = 0.1284 V - 0.0690 theta'
+    # the arm file's drive: tau = 0.1284 V - 0.0690 theta'
     assert arm.drive.gain == pytest.approx(0.1284, abs=5e-5)
     assert arm.drive.damping == pytest.approx(0.0690, abs=5e-5)
     space = arm.space
     assert space["E"].reference == 2.0e11 and space["J_h"].reference == 0.0021
     assert space["E"].lower <= 70e9 and space["E"].upper >= 210e9  # aluminium ... steel
-
-
-def _arm_text(**replace: str) -> str:
-    """The reference arm file with some lines replaced (key → new line, '' deletes it).
-
-    ``top`` is a line put before the first table, ``extra`` one appended at the end.
-    """
-    lines = REFERENCE.read_text().splitlines()
-    out = [replace.pop("top", "")]
-    for line in lines:
-        key = line.split("=")[0].strip()
-        out.append(replace.pop(key) if key in replace else line)
-    return "\n".join(out + list(replace.values())) + "\n"
 
 
 @pytest.mark.parametrize(
@@ -104,7 +90,7 @@ def _arm_text(**replace: str) -> str:
 )
 def test_arm_file_errors_are_one_line_naming_file_and_key(tmp_path, changes, message):
     path = tmp_path / "arm.toml"
-    path.write_text(_arm_text(**changes))
+    path.write_text(arm_text(**changes))
     with pytest.raises(ArmError) as info:
         load_arm(path)
     text = str(info.value)
@@ -125,14 +111,14 @@ def test_mass_per_length_or_mass_instead_of_density(tmp_path):
     rho_a = 2700.0 * 0.025 * 0.002
     for line in (f"mass_per_length = {rho_a!r}", f"mass = {rho_a * 0.5!r}"):
         path = tmp_path / "arm.toml"
-        path.write_text(_arm_text(density=line))
+        path.write_text(arm_text(density=line))
         assert load_arm(path).testbed.mass_per_length == pytest.approx(rho_a, rel=1e-15)
 
 
 def test_fixed_parameters_and_effects(tmp_path):
     path = tmp_path / "arm.toml"
     path.write_text(
-        _arm_text(
+        arm_text(
             b_v="b_v = { reference = 0.5, fixed = true }",  # outside the library's bounds
             top='effects = ["gravity"]',
         )

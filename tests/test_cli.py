@@ -14,13 +14,13 @@ import sys
 from pathlib import Path
 
 import pytest
+from helpers import EXAMPLE
 
 import jaxflex
 from jaxflex._progress import ENVIRONMENT_SWITCH
 from jaxflex.cli import COMMANDS, build_parser, main
 
 ROOT = Path(jaxflex.__file__).parents[1]
-EXAMPLE = ROOT / "jaxflex" / "data" / "example_pulse.csv"
 TINY_SEARCH = ["--generations", "2", "--population", "8", "--no-refine"]
 WARNING = "jaxflex identify: warning: "
 """How the fit's warnings start (its poorly identified parameters, say)."""

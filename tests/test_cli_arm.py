@@ -2,7 +2,7 @@
 
 import json
 
-from test_arm import ARMS
+from helpers import ARMS
 
 from jaxflex.cli import main
 

@@ -5,7 +5,7 @@ import math
 
 import numpy as np
 import pytest
-from test_arm import ARMS
+from helpers import ARMS
 
 from jaxflex.arm import load_arm
 from jaxflex.cli import main
@@ -91,7 +91,7 @@ def test_outputs_are_checked_before_the_arm_is_used(tmp_path, rotflex_log, capsy
     assert taken.read_text() == "{}" and record.read_text() == ""
 
 
-@pytest.mark.slow  # about 25 s: compiling the search
+@pytest.mark.slow  # compiles the search
 def test_study_with_an_arm_fits_the_sensor_channels(tmp_path, rotflex_log):
     out = tmp_path / "study.json"
     assert main(["study", str(rotflex_log), "--arm", ROTFLEX_FILE, "--methods", "de",
@@ -126,7 +126,6 @@ def _offset_log(folder, tau_0: float):
     return path, start
 
 
-# about 12 s with the compilation cache warm (50 s cold) on a busy 2-core machine
 def test_discover_names_a_torque_offset_on_encoder_and_strain_gauge(tmp_path, capsys):
     """Voltage drive, encoder and root strain gauge (no accelerometer): discover fits the two
     channels the arm's sensors give, with their quantisation as noise model, and names the
@@ -154,7 +153,7 @@ def test_discover_names_a_torque_offset_on_encoder_and_strain_gauge(tmp_path, ca
         assert added["nrmse"][channel] < 0.1 * base["nrmse"][channel]
 
 
-@pytest.mark.slow  # about 30 s: compiling the search
+@pytest.mark.slow  # compiles the search
 def test_a_fit_carries_its_rig_to_discover(tmp_path, capsys):
     log, fit = tmp_path / "log.csv", tmp_path / "fit.json"
     assert main(["simulate", "--arm", ROTFLEX_FILE, "--input", "pulse", "--duration", "0.4",
@@ -171,7 +170,7 @@ def test_a_fit_carries_its_rig_to_discover(tmp_path, capsys):
     assert "logs 'torque' but rig 'quanser_rotflex' has a voltage drive" in err
 
 
-@pytest.mark.slow  # about 35 s: compiling the Fisher information
+@pytest.mark.slow  # compiles the Fisher information
 def test_design_with_an_arm_writes_the_drive_and_sensor_columns(tmp_path, capsys):
     out = tmp_path / "designed.csv"
     assert main(["design", "--arm", ROTFLEX_FILE, "--duration", "1", "--max-torque", "4",
@@ -198,7 +197,7 @@ def test_two_link_records_are_refused(tmp_path, reference_log, capsys):
         assert len(err.strip().splitlines()) == 1
 
 
-@pytest.mark.slow  # about 40 s: compiling the search and the refinement
+@pytest.mark.slow  # compiles the search and the refinement
 def test_identify_names_a_strain_gauge_calibrated_wrong(tmp_path):
     """The rig's gauge reads 1.25 times what the arm file says: identify with the arm and
     --effect sensor_gain:deflection_angle gives gain_deflection_angle = 1.25 (motion parameters

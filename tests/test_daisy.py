@@ -8,7 +8,7 @@ assumptions are stated there).
 
 import numpy as np
 import pytest
-from test_datasets import REAL_DATA_DIR, _or_skip
+from helpers import REAL_DATA_DIR, or_skip
 
 from jaxflex import datasets, identify
 from jaxflex.arm import load_arm
@@ -28,7 +28,7 @@ MEASURED_NRMSE = 70.0  # percent, second period, at FITTED
 
 @pytest.fixture(scope="module")
 def sweep():
-    return _or_skip(datasets.load, "daisy_robot_arm", REAL_DATA_DIR)["sweep"]
+    return or_skip(datasets.load, "daisy_robot_arm", REAL_DATA_DIR)["sweep"]
 
 
 def _periodic(sweep) -> Record:
@@ -56,7 +56,7 @@ def test_the_arm_fits_acceleration_only_with_its_gain_identified(sweep):
     assert _score(ARM, worse, record) > MEASURED_NRMSE + 5.0
 
 
-@pytest.mark.slow  # about 100 s on the 2-core machine: DE 15 x 24 and refinement
+@pytest.mark.slow  # DE 15 x 24 and refinement on a 60 s record
 def test_a_small_budget_fit_beats_the_measured_nrmse(sweep):
     record = _periodic(sweep)
     fit = identify([record], ARM, generations=15, population=24, seed=0)

@@ -16,37 +16,21 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from helpers import REAL_DATA_DIR, or_skip
 
 import jaxflex.datasets as datasets
 from jaxflex.cli import main
 from jaxflex.data import load_record
 
 
-def _local_copy() -> str | None:
-    folder = os.environ.get(datasets.DATA_DIR_VARIABLE)
-    return folder if folder and Path(folder).is_dir() else None
-
-
-REAL_DATA_DIR = _local_copy()
-"""The local copy named by JAXFLEX_DATA_DIR at start-up, or None to use the network (or skip)."""
-
-
-def _or_skip(function, *args):
-    """``function(*args)``, or skip the test saying why the real-rig data are not there."""
-    try:
-        return function(*args)
-    except datasets.DataUnavailable as err:
-        pytest.skip(f"real-rig data unavailable: JAXFLEX_DATA_DIR unset and no network ({err})")
-
-
 @pytest.fixture(scope="module")
 def rotflex():
-    return _or_skip(datasets.load, "quanser_rotflex", REAL_DATA_DIR)
+    return or_skip(datasets.load, "quanser_rotflex", REAL_DATA_DIR)
 
 
 @pytest.fixture(scope="module")
 def rotflex_files():
-    return _or_skip(datasets.fetch, "quanser_rotflex", REAL_DATA_DIR)
+    return or_skip(datasets.fetch, "quanser_rotflex", REAL_DATA_DIR)
 
 
 def test_registry_pins_every_file_by_commit_and_sha256():
@@ -169,7 +153,7 @@ def test_download_fills_the_cache_and_checks_hashes(mirror, tmp_path):
 
 
 def test_download_of_the_published_files(mirror, tmp_path):
-    files = _or_skip(datasets.fetch, "daisy_robot_arm", REAL_DATA_DIR)
+    files = or_skip(datasets.fetch, "daisy_robot_arm", REAL_DATA_DIR)
     source = datasets.DATASETS["daisy_robot_arm"].source
     for file, (upstream, _) in source.files.items():
         target = mirror / source.repository / source.commit / upstream
@@ -185,7 +169,7 @@ def test_download_of_the_published_files(mirror, tmp_path):
 
 
 def test_two_link_rig_is_refused_with_the_reason(tmp_path):
-    _or_skip(datasets.fetch, "quanser_2dsfl", REAL_DATA_DIR)
+    or_skip(datasets.fetch, "quanser_2dsfl", REAL_DATA_DIR)
     with pytest.raises(datasets.DatasetError, match="quanser_2dsfl: a two-link arm"):
         datasets.load("quanser_2dsfl", REAL_DATA_DIR)
 

@@ -200,7 +200,7 @@ def test_every_rule_is_listed_in_the_docs_table():
     assert get_effect("torque_offset").parameters[0].unit != "s"  # not a lag effect
 
 
-@pytest.mark.slow  # 35 s on a busy 2-core machine (DE 10 x 20, one step, 60 s held out)
+@pytest.mark.slow  # DE 10 x 20, one step, 60 s held out
 def test_rotflex_claims_match_their_statistics():
     report = rotflex_report()
     data = check_claims(report)

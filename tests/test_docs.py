@@ -8,6 +8,7 @@ import tomllib
 from pathlib import Path
 
 import yaml
+from helpers import benchmark_tables
 
 ROOT = Path(__file__).resolve().parents[1]
 PAGES = [ROOT / "README.md", *sorted((ROOT / "docs").glob("*.md"))]
@@ -37,3 +38,19 @@ def test_code_scrolls_instead_of_running_off_the_page():
     rules = " ".join(sheet.read_text(encoding="utf-8") for sheet in sheets)
     editor = re.search(r"\.jp-InputArea-editor\s*\{([^}]*)\}", rules)
     assert editor and "overflow-x: auto" in editor.group(1)
+
+
+def test_every_figure_on_the_pages_comes_from_a_results_file():
+    """Each table marker and value placeholder of the pages resolves in
+    ``benchmarks/results``."""
+    tables = benchmark_tables()
+    used = set()
+    for page in (ROOT / "docs").glob("*.md"):
+        text = page.read_text(encoding="utf-8")
+        for name in tables.MARKER.findall(text):
+            assert name in tables.TABLES, (page.name, name)
+            assert "|---" in tables.TABLES[name](), (page.name, name)
+        for path, spec in tables.VALUE.findall(text):
+            used.add(path.split("/")[0])
+            assert tables.formatted(tables.lookup(path), spec), (page.name, path)
+    assert used, "no page reads a figure from benchmarks/results"

@@ -1,4 +1,4 @@
-"""Faults and bad input at the command line: one test per defect of the fault report.
+"""Faults and bad input at the command line: refused before any work, in one line.
 
 Each test runs ``jaxflex`` as a user would (``main([...])`` or a subprocess) and checks the exit
 status, that the error is one line naming the path or option, and that no output or temporary
@@ -21,20 +21,19 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from helpers import EXAMPLE, fit_data
 
 import jaxflex
 from jaxflex._io import TEMP_MARK
 from jaxflex.cli import main
-from jaxflex.identification import FIT_FORMAT, Fit, describe_model
-from jaxflex.model import Model
+from jaxflex.identification import Fit
 
-EXAMPLE = Path(jaxflex.__file__).parent / "data" / "example_pulse.csv"
 SETPRIV = shutil.which("setpriv")
 DROP_CAPS = [SETPRIV or "setpriv", "--bounding-set", "-dac_override,-dac_read_search",
              "--inh-caps", "-dac_override,-dac_read_search"]
 
 
-# --- helpers ------------------------------------------------------------------------------------
+# --- helpers --------------------------------------------------------------------------------------
 
 
 def snapshot(root: Path) -> dict[str, tuple[bytes, int]]:
@@ -92,28 +91,6 @@ def rewrite(tmp_path: Path, name: str, change) -> Path:
     return path
 
 
-def fit_data() -> dict:
-    """A complete fit file of the reference model (what `jaxflex identify` writes)."""
-    model = Model()
-    params = {k: float(v) for k, v in model.space.reference().items()}
-    names = list(params)
-    eye = np.eye(len(names)).tolist()
-    return json.loads(json.dumps({
-        "format": FIT_FORMAT, "params": params, "names": names, "fixed": {},
-        "model_description": describe_model(model), "cost": 1e-4, "cost_search": 2e-4,
-        "intervals": {k: [0.9 * v, 1.1 * v] for k, v in params.items()},
-        "std": {k: 0.05 * v for k, v in params.items()}, "covariance": eye, "correlation": eye,
-        "noise": {"joint_angle": 1e-3, "tip_acceleration": 0.05}, "poorly_identifiable": [],
-        "warnings": [], "history": {"best": [2e-4, 1e-4], "mean": [1e-3, 5e-4],
-                                    "best_params": {k: [v, v] for k, v in params.items()}},
-        "refinement": {"start": params, "end": params, "cost_start": 2e-4, "cost_end": 1e-4,
-                       "accepted": True, "result": "successful", "message": "", "steps": 3,
-                       "n_starts": 1},
-        "method": "de", "seed": 0, "settings": {}, "timing": {"search": 1.0, "refine": 0.5},
-        "record_names": ["rec"], "level": 0.95,
-    }, default=float))
-
-
 def write_fit(path: Path, data) -> Path:
     path.write_text(json.dumps(data))
     return path
@@ -140,7 +117,7 @@ needs_setpriv = pytest.mark.skipif(
 )
 
 
-# --- 1. OS errors: refused before the work, one line ---------------------------------------------
+# --- OS errors: refused before the work, one line -------------------------------------------------
 
 
 @needs_setpriv
@@ -153,7 +130,7 @@ needs_setpriv = pytest.mark.skipif(
     ["discover", "{rec}", "--json", "ro/discover.json"],
     ["demo", "--out", "ro/demo"],
 ])
-def test_1_read_only_directory_is_refused_before_any_work(tmp_path, command):
+def test_read_only_directory_is_refused_before_any_work(tmp_path, command):
     rec, fit = example(tmp_path), write_fit(tmp_path / "fit.json", fit_data())
     ro = tmp_path / "ro"
     ro.mkdir()
@@ -170,7 +147,7 @@ def test_1_read_only_directory_is_refused_before_any_work(tmp_path, command):
 
 
 @needs_setpriv
-def test_1_unreadable_input_is_one_line(tmp_path):
+def test_unreadable_input_is_one_line(tmp_path):
     rec = example(tmp_path)
     rec.chmod(0)
     proc = jaxflex_subprocess(["identify", rec, "--out", "fit.json"], tmp_path, drop_caps=True)
@@ -181,17 +158,17 @@ def test_1_unreadable_input_is_one_line(tmp_path):
     assert not (tmp_path / "fit.json").exists()
 
 
-def test_1_output_under_a_file_is_refused(tmp_path, capsys):
+def test_output_under_a_file_is_refused(tmp_path, capsys):
     rec = example(tmp_path)
     (tmp_path / "afile.csv").write_text("x")
     refused(["identify", rec, "--out", tmp_path / "afile.csv" / "fit.json"], capsys, tmp_path,
             "--out", "afile.csv/fit.json", "afile.csv is a file, not a directory")
 
 
-# --- 2. permissions ---------------------------------------------------------------------------
+# --- permissions ----------------------------------------------------------------------------------
 
 
-def test_2_written_files_get_ordinary_permissions_and_links_are_kept(tmp_path, capsys):
+def test_written_files_get_ordinary_permissions_and_links_are_kept(tmp_path, capsys):
     previous = os.umask(0o022)
     try:
         out = tmp_path / "s.csv"
@@ -213,19 +190,19 @@ def test_2_written_files_get_ordinary_permissions_and_links_are_kept(tmp_path, c
         os.umask(previous)
 
 
-# --- 3. --set dt / duration ---------------------------------------------------------------------
+# --- --set dt / duration --------------------------------------------------------------------------
 
 
 @pytest.mark.parametrize("name", ["dt", "duration"])
-def test_3_set_dt_or_duration_points_to_the_option(tmp_path, capsys, name):
+def test_set_dt_or_duration_points_to_the_option(tmp_path, capsys, name):
     refused(["simulate", "--input", "pulse", "--set", f"{name}=0.01", "--out", tmp_path / "x.csv"],
             capsys, tmp_path, f"--set {name}: use --{name} instead")
 
 
-# --- 4. a directory named like a record -----------------------------------------------------------
+# --- a directory named like a record --------------------------------------------------------------
 
 
-def test_4_subdirectory_named_csv_is_skipped(tmp_path, capsys):
+def test_a_subdirectory_named_csv_is_skipped(tmp_path, capsys):
     data = tmp_path / "data"
     data.mkdir()
     example(data)
@@ -236,10 +213,10 @@ def test_4_subdirectory_named_csv_is_skipped(tmp_path, capsys):
             "--out", "fit.json: file exists; pass --overwrite")
 
 
-# --- 5. discover --report and --json ------------------------------------------------------------
+# --- discover --report and --json -----------------------------------------------------------------
 
 
-def test_5_discover_outputs_are_checked_together_before_the_run(tmp_path, capsys):
+def test_discover_outputs_are_checked_together_before_the_run(tmp_path, capsys):
     rec = example(tmp_path)
     refused(["discover", rec, "--json", tmp_path / "r2" / "discover.json",
              "--report", tmp_path / "r2"], capsys, tmp_path,
@@ -251,7 +228,7 @@ def test_5_discover_outputs_are_checked_together_before_the_run(tmp_path, capsys
     assert not (tmp_path / "r2").exists()
 
 
-# --- 6. units -----------------------------------------------------------------------------------
+# --- units ----------------------------------------------------------------------------------------
 
 
 def _ms(c):
@@ -276,7 +253,7 @@ def _huge_torque(c):
     (_small_degrees, ["column 'joint_angle'", "is the angle in degrees?"]),
     (_huge_torque, ["column 'torque'", "joint inertia", "is the torque in N m"]),
 ])
-def test_6_implausible_units_stop_with_the_remedy(tmp_path, capsys, change, fragments):
+def test_implausible_units_stop_with_the_remedy(tmp_path, capsys, change, fragments):
     path = rewrite(tmp_path, "bad.csv", change)
     refused(["identify", path, "--out", tmp_path / "fit.json"], capsys, tmp_path,
             "bad.csv", *fragments, "pass --no-unit-check to skip this check")
@@ -286,7 +263,7 @@ def test_6_implausible_units_stop_with_the_remedy(tmp_path, capsys, change, frag
             tmp_path, "fit.json: file exists")
 
 
-def test_6_constant_angle_under_torque_is_reported(tmp_path, capsys):
+def test_constant_angle_under_torque_is_reported(tmp_path, capsys):
     from jaxflex.data import RecordWarning
 
     path = rewrite(tmp_path, "still.csv", _constant_angle)
@@ -297,15 +274,15 @@ def test_6_constant_angle_under_torque_is_reported(tmp_path, capsys):
                 "fit.json: file exists")
 
 
-# --- 7. absurd bounds ---------------------------------------------------------------------------
+# --- absurd bounds --------------------------------------------------------------------------------
 
 
-def test_7_absurd_bounds_are_refused_before_the_search(tmp_path, capsys):
+def test_absurd_bounds_are_refused_before_the_search(tmp_path, capsys):
     refused(["identify", example(tmp_path), "--bound", "J_h=1e-300:1e300", "--out",
              tmp_path / "fit.json"], capsys, tmp_path, "--bound J_h", "600 decades")
 
 
-def test_7_a_failed_fit_is_not_written(monkeypatch, tmp_path, capsys):
+def test_a_failed_fit_is_not_written(monkeypatch, tmp_path, capsys):
     """A search whose every candidate diverged (cost inf, as the 1e-300:1e300 box gave) is an
     error, not a fit file full of nulls; the search itself is replaced by its outcome here."""
     import functools
@@ -323,17 +300,17 @@ def test_7_a_failed_fit_is_not_written(monkeypatch, tmp_path, capsys):
             "narrow the --bound ranges", "nothing was written")
 
 
-# --- 8. an output that is a directory ----------------------------------------------------------
+# --- an output that is a directory ----------------------------------------------------------------
 
 
 @pytest.mark.parametrize("overwrite", [[], ["--overwrite"]])
-def test_8_output_directory_is_refused(tmp_path, capsys, overwrite):
+def test_an_output_that_is_a_directory_is_refused(tmp_path, capsys, overwrite):
     (tmp_path / "dir").mkdir()
     refused(["identify", example(tmp_path), "--out", tmp_path / "dir", *overwrite], capsys,
             tmp_path, "--out", "dir: is a directory; give a file name inside it")
 
 
-# --- 9. hand-edited fit files ------------------------------------------------------------------
+# --- hand-edited fit files ------------------------------------------------------------------------
 
 
 @pytest.mark.parametrize(("edit", "field"), [
@@ -348,17 +325,17 @@ def test_8_output_directory_is_refused(tmp_path, capsys, overwrite):
      "field 'model_description': simulation.n_elements: expected a whole number in [1, 1000]"),
 ])
 @pytest.mark.parametrize("command", ["validate", "discover"])
-def test_9_hand_edited_fit_names_the_field(tmp_path, capsys, edit, field, command):
+def test_hand_edited_fit_names_the_field(tmp_path, capsys, edit, field, command):
     fit = write_fit(tmp_path / "fit.json", edit(fit_data()))
     option = "--fit" if command == "validate" else "--initial"
     refused([command, example(tmp_path), option, fit], capsys, tmp_path,
             f"{option} {fit}: cannot use the fit", field)
 
 
-# --- 10. partial outputs -------------------------------------------------------------------------
+# --- partial outputs ------------------------------------------------------------------------------
 
 
-def test_10_no_output_is_written_when_another_is_refused(tmp_path, capsys):
+def test_no_output_is_written_when_another_is_refused(tmp_path, capsys):
     refused(["simulate", "--input", "pulse", "--out", tmp_path / "s.csv", "--plot",
              tmp_path / "s.jpg"], capsys, tmp_path, "--plot", "s.jpg: unsupported file type")
     refused(["identify", example(tmp_path), "--out", tmp_path / "same.png", "--plot",
@@ -369,7 +346,7 @@ def test_10_no_output_is_written_when_another_is_refused(tmp_path, capsys):
             "--plot-intervals", "a.png: --plot writes the same file")
 
 
-def test_10_all_outputs_or_none(monkeypatch, tmp_path, capsys):
+def test_outputs_appear_all_together_or_none(monkeypatch, tmp_path, capsys):
     """A failure while writing the second output leaves neither (the first was staged)."""
     from matplotlib.figure import Figure
 
@@ -384,7 +361,7 @@ def test_10_all_outputs_or_none(monkeypatch, tmp_path, capsys):
     assert not (tmp_path / "s.csv").exists()
 
 
-# --- 11. sizes ----------------------------------------------------------------------------------
+# --- sizes ----------------------------------------------------------------------------------------
 
 
 @pytest.mark.parametrize(("argv", "fragments"), [
@@ -398,7 +375,7 @@ def test_10_all_outputs_or_none(monkeypatch, tmp_path, capsys):
      ["argument --seed", "must lie in [0, 4294967295]"]),
     (["simulate", "--input", "pulse", "--seed", "1e23"], ["argument --seed", "not a whole number"]),
 ])
-def test_11_absurd_sizes_are_refused_up_front(tmp_path, capsys, argv, fragments):
+def test_absurd_sizes_are_refused_up_front(tmp_path, capsys, argv, fragments):
     before = snapshot(tmp_path)
     code, err = run([*argv, "--out", tmp_path / "x.csv"], capsys)
     assert code == 2 and not any("Traceback" in line for line in err)
@@ -406,7 +383,7 @@ def test_11_absurd_sizes_are_refused_up_front(tmp_path, capsys, argv, fragments)
     assert snapshot(tmp_path) == before
 
 
-def test_11_the_size_limit_can_be_raised(tmp_path, capsys, monkeypatch):
+def test_the_size_limit_can_be_raised(tmp_path, capsys, monkeypatch):
     monkeypatch.setenv("JAXFLEX_MAX_SAMPLES", "10")
     refused(["simulate", "--input", "pulse", "--out", tmp_path / "x.csv"], capsys, tmp_path,
             "size limit of 10", "JAXFLEX_MAX_SAMPLES")
@@ -415,18 +392,18 @@ def test_11_the_size_limit_can_be_raised(tmp_path, capsys, monkeypatch):
     assert code == 0 and (tmp_path / "x.csv").exists()
 
 
-# --- 12. study methods --------------------------------------------------------------------------
+# --- study methods --------------------------------------------------------------------------------
 
 
-def test_12_repeated_method_is_refused(tmp_path, capsys):
+def test_repeated_method_is_refused(tmp_path, capsys):
     refused(["study", example(tmp_path), "--methods", "de,de", "--seeds", "0", "--out",
              tmp_path / "s.json"], capsys, tmp_path, "--methods 'de,de': 'de' given twice")
 
 
-# --- 13. interruption ---------------------------------------------------------------------------
+# --- interruption ---------------------------------------------------------------------------------
 
 
-def test_13_ctrl_c_is_one_line_and_leaves_nothing(monkeypatch, tmp_path, capsys):
+def test_ctrl_c_is_one_line_and_leaves_nothing(monkeypatch, tmp_path, capsys):
     from matplotlib.figure import Figure
 
     def interrupted(self, fname, **kwargs):
@@ -443,7 +420,7 @@ def test_13_ctrl_c_is_one_line_and_leaves_nothing(monkeypatch, tmp_path, capsys)
 
 @pytest.mark.parametrize(("signum", "status", "word"), [
     (signal.SIGTERM, 143, "terminated"), (signal.SIGINT, 130, "interrupted")])
-def test_13_signals_stop_with_one_line_and_no_files(tmp_path, signum, status, word):
+def test_signals_stop_with_one_line_and_no_files(tmp_path, signum, status, word):
     proc = jaxflex_subprocess(["demo", "--out", tmp_path / "demo"], tmp_path)
     assert proc.stdout.readline().startswith("== records")  # at work
     proc.send_signal(signum)
@@ -453,7 +430,7 @@ def test_13_signals_stop_with_one_line_and_no_files(tmp_path, signum, status, wo
     assert [p for p in tmp_path.rglob("*") if p.is_file()] == []
 
 
-def test_13_sigterm_in_the_api_leaves_no_staged_file(tmp_path):
+def test_sigterm_in_the_api_leaves_no_staged_file(tmp_path):
     """Outside the command line too: SIGTERM inside all_or_nothing removes what was staged."""
     script = ("import sys, time\n"
               "from jaxflex._io import all_or_nothing, write_text\n"
@@ -472,7 +449,7 @@ def test_13_sigterm_in_the_api_leaves_no_staged_file(tmp_path):
     assert list(tmp_path.iterdir()) == []
 
 
-def test_13_debug_shows_the_traceback(tmp_path):
+def test_debug_shows_the_traceback(tmp_path):
     from jaxflex.cli import UsageError
 
     with pytest.raises(UsageError, match="--set dt: use --dt instead"):
@@ -480,7 +457,7 @@ def test_13_debug_shows_the_traceback(tmp_path):
               "--debug"])
 
 
-def test_13_temp_file_of_a_killed_process_is_removed(tmp_path, capsys):
+def test_temp_file_of_a_killed_process_is_removed(tmp_path, capsys):
     stale = tmp_path / f".s.csv{TEMP_MARK}{2**22 + 12345}-dead"
     stale.write_bytes(b"")
     code, _ = run(["simulate", "--input", "pulse", "--duration", "0.1", "--out",
@@ -488,10 +465,10 @@ def test_13_temp_file_of_a_killed_process_is_removed(tmp_path, capsys):
     assert code == 0 and not stale.exists() and (tmp_path / "s.csv").exists()
 
 
-# --- 14. inputs and implausible options ---------------------------------------------------------
+# --- inputs and implausible options ---------------------------------------------------------------
 
 
-def test_14_an_input_is_never_an_output(tmp_path, capsys):
+def test_an_input_is_never_an_output(tmp_path, capsys):
     rec = example(tmp_path, "data.csv")
     refused(["identify", rec, "--out", rec, "--overwrite"], capsys, tmp_path, "--out", "data.csv")
     report = tmp_path / "report"
@@ -501,13 +478,13 @@ def test_14_an_input_is_never_an_output(tmp_path, capsys):
             "--report", "comparison.json: is an input of this command")
 
 
-def test_14_held_out_record_that_is_fitted(tmp_path, capsys):
+def test_a_held_out_record_that_is_also_fitted_is_refused(tmp_path, capsys):
     rec = example(tmp_path)
     refused(["discover", rec, "--holdout", rec], capsys, tmp_path,
             f"--holdout {rec}: is also a record to fit")
 
 
-def test_14_resampling_names_the_gap(tmp_path, capsys):
+def test_resampling_names_the_gap(tmp_path, capsys):
     def gap(c):
         keep = np.ones(c["time"].shape, bool)
         keep[500:600] = False  # 100 ms of samples lost
@@ -527,7 +504,7 @@ def test_14_resampling_names_the_gap(tmp_path, capsys):
                     "replace it"
 
 
-def test_14_design_options_are_checked(tmp_path, capsys):
+def test_design_rms_torque_above_the_peak_is_refused(tmp_path, capsys):
     refused(["design", "--max-torque", "0.2", "--rms-torque", "0.5", "--max-angle", "1",
              "--max-speed", "5", "--out", tmp_path / "d.csv"], capsys, tmp_path,
             "--rms-torque 0.5 exceeds --max-torque 0.2")
@@ -551,22 +528,22 @@ def test_design_rms_torque_defaults_to_half_the_peak(monkeypatch, tmp_path, caps
 
 
 @pytest.mark.slow
-def test_14_design_without_information_is_not_written(tmp_path, capsys):
+def test_design_without_information_is_not_written(tmp_path, capsys):
     refused(["design", "--max-torque", "0.5", "--max-angle", "1e-9", "--max-speed", "5",
              "--harmonics", "4", "--iterations", "1", "--out", tmp_path / "d.csv"],
             capsys, tmp_path, "unidentifiable (infinite intervals)", "--max-angle 1e-09")
 
 
-def test_14_f_max_above_nyquist(tmp_path, capsys):
+def test_f_max_above_nyquist_is_refused(tmp_path, capsys):
     fit = write_fit(tmp_path / "fit.json", fit_data())
     refused(["validate", example(tmp_path), "--fit", fit, "--f-max", "1e6"], capsys, tmp_path,
             "--f-max 1e+06 Hz is above the records' Nyquist frequency 500 Hz")
 
 
-# --- 15. messages in the command line's words ---------------------------------------------------
+# --- messages in the command line's words ---------------------------------------------------------
 
 
-def test_15_quoted_header_and_excel_separator_line_are_read(tmp_path, capsys):
+def test_quoted_header_and_excel_separator_line_are_read(tmp_path, capsys):
     text = EXAMPLE.read_text().splitlines()
     header = next(i for i, ln in enumerate(text) if not ln.startswith("#"))
     text[header] = ",".join(f'"{c}"' for c in text[header].split(","))
@@ -577,29 +554,29 @@ def test_15_quoted_header_and_excel_separator_line_are_read(tmp_path, capsys):
             "fit.json: file exists; pass --overwrite to replace it")
 
 
-def test_15_text_file_named_npz(tmp_path, capsys):
+def test_a_text_file_named_npz_is_refused_saying_why(tmp_path, capsys):
     path = tmp_path / "r.npz"
     shutil.copy(EXAMPLE, path)
     refused(["identify", path, "--out", tmp_path / "fit.json"], capsys, tmp_path,
             "r.npz: not an NPZ file", "wrong suffix")
 
 
-def test_15_same_file_twice(tmp_path, capsys):
+def test_the_same_file_given_twice_is_refused(tmp_path, capsys):
     rec = example(tmp_path)
     refused(["identify", rec, str(tmp_path / "." / rec.name), "--out", tmp_path / "f.json"],
             capsys, tmp_path, "rec.csv: record file given twice")
 
 
-def test_15_option_errors_use_option_names(tmp_path, capsys):
+def test_option_errors_use_option_names(tmp_path, capsys):
     fit = write_fit(tmp_path / "fit.json", fit_data())
     code, err = run(["validate", example(tmp_path), "--fit", fit, "--t-end", "-1"], capsys)
     assert code == 2 and "argument --t-end" in err[-1] and "t_end=" not in "".join(err)
 
 
-# --- 16. timings only under "timing" -----------------------------------------------------------
+# --- timings only under "timing" ------------------------------------------------------------------
 
 
-def test_16_times_are_kept_only_under_timing(tmp_path):
+def test_times_are_kept_only_under_timing(tmp_path):
     data = fit_data()
     data["refinement"] |= {"wall_time": 0.5, "compile_time": 2.0}  # an older fit file
     fit = Fit.from_dict(data)
@@ -610,7 +587,7 @@ def test_16_times_are_kept_only_under_timing(tmp_path):
     assert again.refinement.wall_time == fit.timing["refine"]  # read back from "timing"
 
 
-# --- the fitting options shared by identify, study and discover ----------------------------------
+# --- the fitting options shared by identify, study and discover -----------------------------------
 
 
 @pytest.mark.parametrize(("option", "value", "message"), [

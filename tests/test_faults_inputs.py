@@ -5,8 +5,8 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from helpers import EXAMPLE
 
-import jaxflex
 from jaxflex import Model, datasets, identify
 from jaxflex.arm import ArmError, load_arm
 from jaxflex.cli import main
@@ -20,7 +20,6 @@ from jaxflex.testbed import Testbed as LinkSettings  # not collected as a test c
 
 ROTFLEX = arm_path("quanser_rotflex")
 TEXT = ROTFLEX.read_text(encoding="utf-8")
-EXAMPLE = Path(jaxflex.__file__).parent / "data" / "example_pulse.csv"
 
 
 def _arm(tmp_path: Path, old: str, new: str) -> Path:

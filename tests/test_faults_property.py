@@ -20,6 +20,7 @@ from typing import Any
 import pytest
 
 hypothesis = pytest.importorskip("hypothesis")
+from helpers import EXAMPLE, fit_data  # noqa: E402
 from hypothesis import HealthCheck, Phase, given, settings  # noqa: E402
 from hypothesis import strategies as st  # noqa: E402
 
@@ -32,7 +33,6 @@ from jaxflex.drives import DRIVES  # noqa: E402
 from jaxflex.identification import load_fit  # noqa: E402
 from jaxflex.parameters import BASE_PARAMETERS  # noqa: E402
 from jaxflex.sensors import SENSORS  # noqa: E402
-from tests.test_faults import EXAMPLE, fit_data  # noqa: E402
 
 HUNT = int(os.environ.get("JAXFLEX_PROPERTY_EXAMPLES", "0"))
 """Set (e.g. to 1000) for a longer, random hunt; the default suite runs 30 fixed examples."""

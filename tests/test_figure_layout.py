@@ -19,9 +19,9 @@ import itertools
 
 import numpy as np
 import pytest
+from helpers import ARMS, REAL_DATA_DIR
 from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.text import Text
-from test_datasets import REAL_DATA_DIR
 
 import jaxflex  # noqa: F401  (float64)
 from jaxflex.comparison import compare
@@ -197,8 +197,6 @@ def test_fit_figure():
 
 
 def test_real_rig_report_figures():
-    from test_arm import ARMS
-
     from jaxflex import datasets
     from jaxflex.arm import load_arm
     from jaxflex.plots.compare import plot_frf, plot_time

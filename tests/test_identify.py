@@ -145,8 +145,8 @@ def _coverage(seeds):
         std_log = np.log(unc.upper / unc.lower) / (2 * 1.959964)
         z_scores.append((np.log(unc.estimate) - np.log(list(TRUTH.values()))) / std_log)
         assert unc.poorly_identifiable == () and unc.unidentifiable == ()
-        # the right model: the robust (HAC) intervals agree with the nominal ones (measured
-        # 0.96-0.99 on seed 0), so they are not labelled conditional on the model
+        # the right model: the robust (HAC) intervals agree with the nominal ones, so they are
+        # not labelled conditional on the model
         widening = np.array(list(unc.residual_checks["widening"].values()))
         assert np.all((0.8 < widening) & (widening < 1.25)), widening
         assert not unc.model_conditional

@@ -21,8 +21,8 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from discovery_cases import START, TRUTH
 from reference_solver import radau_reference
-from test_discover import START, TRUTH
 
 from jaxflex.comparison import DEFAULT_T_END
 from jaxflex.data import Dataset, load_record
@@ -160,7 +160,7 @@ def run_payload(tmp_path, logger, outputs=jaxflex_outputs):
     check_payload(discover(records, initial=START), floor)
 
 
-@pytest.mark.slow  # about 13 s; the clean Radau-integrated records below check the same
+@pytest.mark.slow  # the clean Radau-integrated records below check the same
 def test_clean_logger_records_add_nothing(tmp_path):
     run_clean(tmp_path, DEFAULT_CLEAN)
 

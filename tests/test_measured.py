@@ -6,8 +6,7 @@ import math
 import numpy as np
 import pytest
 import scipy.linalg
-from test_arm import ARMS
-from test_datasets import REAL_DATA_DIR
+from helpers import ARMS, REAL_DATA_DIR
 
 from jaxflex import Model, datasets, get_effect, identify, simulate
 from jaxflex.arm import load_arm
@@ -116,9 +115,10 @@ def _clamped_frequencies(params) -> np.ndarray:
 
 @pytest.mark.slow
 def test_rotflex_square_wave_fit_validates_on_run_985():
-    """Small budget (DE 10 × 20 + refinement, about a minute), the arm plus a torque offset:
-    measured 5.6 / 9.4 % on the fit run and 159 / 25.0 % held out (the joint angle drifts over
-    60 s), J_h 0.0018 kg m², clamped-link modes 3.24 and 20.3 Hz (measured ~3.4 and 21 Hz)."""
+    """Small budget (DE 10 × 20 + refinement), the arm plus a torque offset: the NRMSE of both
+    channels bounded on the fit run and on the held-out run (whose joint angle drifts over
+    60 s), J_h within 20 % of Quanser's 0.0021 kg m², the clamped-link modes within 10 % of the
+    measured 3.4 and 21 Hz."""
     try:
         records = datasets.load("quanser_rotflex", REAL_DATA_DIR)
     except datasets.DataUnavailable as err:

@@ -48,7 +48,7 @@ SPLIT_CHECKS = textwrap.dedent(
 )
 
 
-@pytest.mark.slow  # about 40 s; the fast suite runs three devices in the device-count hash test
+@pytest.mark.slow  # the fast suite runs three devices in the device-count hash test
 def test_split_over_three_devices_in_a_fresh_process():
     """Device count from JAXFLEX_HOST_DEVICES; simulation, jit, DE and PSO runs all split."""
     env = {**os.environ, "JAXFLEX_HOST_DEVICES": "3", "JAX_PLATFORMS": "cpu"}

@@ -6,8 +6,8 @@ import re
 
 import numpy as np
 import pytest
+from helpers import ARMS
 from scipy.ndimage import maximum_filter1d, minimum_filter1d
-from test_arm import ARMS
 
 from jaxflex.arm import load_arm
 from jaxflex.data import Record, load_record

@@ -3,7 +3,7 @@
 import equinox as eqx
 import numpy as np
 import pytest
-from test_arm import ARMS
+from helpers import ARMS
 
 from jaxflex import Model, reference_parameters, simulate
 from jaxflex.arm import ArmError, arm_from_dict, load_arm

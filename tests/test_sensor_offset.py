@@ -59,7 +59,7 @@ def test_synthetic_records_carry_the_offset_in_that_column_alone():
         np.testing.assert_array_equal(r.tip_acceleration, c.tip_acceleration)
 
 
-@pytest.mark.slow  # about 40 s: the discovery engine compiles its Jacobian
+@pytest.mark.slow  # the discovery engine compiles its Jacobian
 def test_discover_scores_the_encoder_offset_first():
     """The score test of sensor_offset:joint_angle at the true motion parameters is the
     largest, ahead of a torque offset and gravity, with the right sign."""

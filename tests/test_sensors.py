@@ -4,7 +4,7 @@ import math
 
 import numpy as np
 import pytest
-from test_arm import ARMS, _arm_text
+from helpers import ARMS, arm_text
 
 from jaxflex import Model, reference_parameters, simulate
 from jaxflex.arm import ArmError, load_arm
@@ -159,7 +159,7 @@ def test_rotflex_arm_sensors(tmp_path):
 )
 def test_sensor_table_errors_name_file_and_key(tmp_path, extra, message):
     path = tmp_path / "arm.toml"
-    path.write_text(_arm_text(extra=extra))
+    path.write_text(arm_text(extra=extra))
     with pytest.raises(ArmError, match=None) as info:
         load_arm(path)
     assert message in str(info.value) and "\n" not in str(info.value)

@@ -50,7 +50,7 @@ def test_the_offset_drives_a_resting_arm_once_it_beats_coulomb_friction():
     assert float(creep.joint_velocity[-1]) == pytest.approx(speed, rel=1e-3)
 
 
-@pytest.mark.slow  # a base refit and the score tests of every candidate: about 30 s
+@pytest.mark.slow  # a base refit and the score tests of every candidate
 def test_score_tests_name_the_offset_not_gravity():
     """A bias hidden in synthetic records is found by discover's score tests, ahead of the
     tilted plane (gravity) that used to absorb it, and its sign is estimated."""

@@ -22,7 +22,7 @@ import sysconfig
 from pathlib import Path
 
 import pytest
-from test_datasets import REAL_DATA_DIR
+from helpers import REAL_DATA_DIR
 
 ROOT = Path(__file__).resolve().parents[1]
 SHARED_REAL_DATA = ROOT.parent / "shared" / "realdata"  # the Makefile's REALDATA

@@ -98,10 +98,10 @@ def one_line_warning(prefix: str):
 
 def in_our_words(message: str) -> str:
     """``message`` with the words of a library jaxflex computes with replaced by what they mean
-    for the run: optimistix's result messages (:func:`jaxflex.refine.in_fit_words`; only a run
-    that loaded optimistix can meet them)."""
+    for the run: optimistix's result messages (:func:`jaxflex.least_squares.in_fit_words`;
+    only a run that loaded optimistix can meet them)."""
     if "optimistix" in sys.modules:
-        from jaxflex.refine import in_fit_words
+        from jaxflex.least_squares import in_fit_words
 
         message = in_fit_words(message)
     return message

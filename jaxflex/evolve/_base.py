@@ -86,8 +86,8 @@ def uniform_blocks(key: PRNGKeyArray, n: int, *widths: int) -> list[Float[Array,
     """Independent ``U[0, 1)`` blocks of shapes ``(n, w)`` for each ``w`` in ``widths``, cut from
     ONE random draw.
 
-    Every call site of JAX's threefry hash costs ~0.3 s (``randint``: ~1 s) of XLA compile time
-    on CPU, so a generation draws all its randomness at once (5x faster compile for DE).
+    Every call site of JAX's threefry hash adds XLA compile time of its own (``randint`` more
+    than ``uniform``), so a generation draws all its randomness at once.
     """
     u = jax.random.uniform(key, (n, sum(widths)), dtype=jnp.result_type(float))
     return jnp.split(u, np.cumsum(widths)[:-1].tolist(), axis=1)

@@ -1,0 +1,404 @@
+"""Bounded Levenberg–Marquardt: jaxflex's one gradient solver for least-squares fits.
+
+optimistix's Levenberg–Marquardt (trust region, QR solve of the damped system) with a descent
+that respects box bounds (:class:`BoxedDampedNewton`: a parameter on a bound that the gradient
+pushes outwards is held there for the step, each step is cut back into the box), and a dense
+forward-mode Jacobian (:func:`dense_jacobian`: a handful of parameters, thousands of
+residuals). The fitted set is a boolean mask (held parameters keep their start values, their
+Jacobian columns vanish), so one compilation serves every fitted set of the same size. A solved
+point is kept only if its cost is finite and lower than at the start.
+
+It serves identification (:func:`jaxflex.refine.refine`: the objective's residuals in the unit
+box of the search, with optimistix's damping ``λ I``, since Marquardt's, near Gauss–Newton from
+the first step, carries weakly determined parameters onto their bounds) and discovery (its
+quantisation-aware likelihood, :mod:`jaxflex.discovery`, with Marquardt's scale-free
+``λ diag(JᵀJ)``: on a cost of millions in coordinates of order one, ``λ I`` takes bare
+Gauss–Newton steps and, when those fail, stalls).
+
+Why a mask and a box-aware descent rather than unconstrained coordinates (``z = logit(u)``): a
+logit path compiles once per fitted set, and a parameter ending on its bound sends ``z`` off to
+infinity and uses every step, where the box-aware descent holds it on the bound. The solver is
+stepped in a loop that also stops when the cost only changes at round-off (``ftol``,
+:data:`STALL_STEPS`), because optimistix's own test (the step and every residual within
+``rtol``/``atol``) is not met there. Discovery's solve calls its own compiled Jacobian block
+back (:func:`bounded_least_squares_of`) rather than compiling the simulator's derivatives a
+second time.
+"""
+
+from __future__ import annotations
+
+import itertools
+import math
+from collections.abc import Callable
+from dataclasses import dataclass, field
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import lineax as lx
+import numpy as np
+import optimistix as optx
+from jaxtyping import Array, ArrayLike, Bool, Float
+
+from jaxflex.parallel import usable_cores
+
+RESULT_NAMES: tuple[str, ...] = (
+    "successful",
+    "nonlinear_max_steps_reached",
+    "nonlinear_divergence",
+    "nonfinite",
+)
+
+
+def _result_name(result: optx.RESULTS) -> str:
+    for name in RESULT_NAMES:
+        if bool(result == getattr(optx.RESULTS, name)):
+            return name
+    return "failed"
+
+
+_RESULT_MEANINGS = {
+    "successful": "converged",
+    "nonlinear_max_steps_reached": (
+        "Levenberg–Marquardt took all its steps without meeting its tolerances: the estimate "
+        "is the best point it reached, not a proven least-squares optimum, and intervals "
+        "computed there are only indicative; a better start (more generations, or "
+        "refine_starts= above 1) may let it converge"
+    ),
+    "nonlinear_divergence": (
+        "Levenberg–Marquardt diverged; the best point it reached is kept only where it lowers "
+        "the cost"
+    ),
+    "nonfinite": (
+        "the simulation gave inf or nan at parameters Levenberg–Marquardt tried (the model "
+        "blows up there); the best finite point is kept only where it lowers the cost, and "
+        "narrower bounds keep the fit away from them"
+    ),
+}
+"""What each end of a solve means for a fit, said instead of optimistix's messages, which
+speak of solvers in general (a 'root-find on a function that has no roots', 'increase
+`max_steps`')."""
+
+
+def _result_message(result: optx.RESULTS) -> str:
+    """The end of a solve in the words of a fit (:data:`_RESULT_MEANINGS`)."""
+    name = _result_name(result)
+    if name in _RESULT_MEANINGS:
+        return _RESULT_MEANINGS[name]
+    return f"a Levenberg–Marquardt step failed: {optx.RESULTS[result]}"
+
+
+def in_fit_words(message: str) -> str:
+    """``message`` with any of optimistix's result messages in it replaced by what it means
+    for a fit (e.g. a warning or error of the solver that reached the user)."""
+    text = " ".join(message.split())
+    for name, meaning in _RESULT_MEANINGS.items():
+        words = " ".join(optx.RESULTS[getattr(optx.RESULTS, name)].split())
+        if words and words in text:
+            text = text.replace(words, meaning)
+    return text
+
+
+
+def dense_jacobian(fn: Callable[[Array], Array]) -> Callable[[Array], Array]:
+    """``fn`` whose JVP materialises the full Jacobian by forward mode (``jacfwd``).
+
+    Levenberg–Marquardt needs ``J`` and ``Jᵀr``; with a dense ``J`` (d columns, one batched
+    forward pass) its linearisation transposes trivially instead of running the simulator in
+    reverse, which halves compile time and speeds up every step.
+    """
+
+    @jax.custom_jvp
+    def wrapped(z):
+        return fn(z)
+
+    @wrapped.defjvp
+    def _jvp(primals, tangents):
+        (z,), (t,) = primals, tangents
+        jac, value = jax.jacfwd(lambda y: _twice(fn(y)), has_aux=True)(z)
+        return value, jac @ t
+
+    return wrapped
+
+
+def _twice(x):
+    return x, x
+
+
+Residuals = Callable[[Array, object], Array]
+"""``residuals(p, args)``: the residual vector at the solver coordinates ``p``."""
+
+
+class _BoxedStep(eqx.Module):
+    """``(J ŷ, √λ D ŷ)`` with the held coordinates of ``ŷ`` zeroed: the damped least-squares
+    operator of the free coordinates (``D`` the column norms of ``J``)."""
+
+    jac: lx.AbstractLinearOperator
+    held: Bool[Array, " d"]
+    norms: Float[Array, " d"]
+    damping: Float[Array, ""]
+
+    def __call__(self, v):
+        return self.jac.mv(jnp.where(self.held, 0.0, v)), jnp.sqrt(self.damping) * self.norms * v
+
+
+FIRST_DAMPING = 1e-3
+"""``λ`` of the first step with Marquardt's damping (relative to ``diag(JᵀJ)``; the trust
+region scales it after): close to a Gauss–Newton step."""
+
+
+class _BoxState(eqx.Module):
+    y: Float[Array, " d"]
+    f_info: optx.FunctionInfo.ResidualJac
+    held: Bool[Array, " d"]
+    norms: Float[Array, " d"]
+
+
+class BoxedDampedNewton(optx.AbstractDescent):
+    """optimistix's damped Newton (Levenberg–Marquardt) descent on ``lower ≤ y ≤ upper``.
+
+    A coordinate on a bound that the gradient ``Jᵀr`` pushes outwards is held there for the
+    step (its column leaves the damped system), and the step is cut back into the box. The
+    trust-region search then judges the step actually taken. The damping is optimistix's
+    ``λ I`` (``λ = 1/step size``, first 1), or with ``marquardt`` Marquardt's scale-free
+    ``λ diag(JᵀJ)`` (first ``λ`` :data:`FIRST_DAMPING`): on a cost of millions in coordinates
+    of order one, ``λ I`` takes bare Gauss–Newton steps and, when those fail, stalls.
+    """
+
+    lower: Float[Array, " d"]
+    upper: Float[Array, " d"]
+    marquardt: bool = eqx.field(static=True, default=False)
+    linear_solver: lx.AbstractLinearSolver = lx.QR()
+
+    def init(self, y, f_info_struct):
+        def zero(leaf):
+            shaped = isinstance(leaf, jax.ShapeDtypeStruct)
+            return jnp.zeros(leaf.shape, leaf.dtype) if shaped else leaf
+
+        f_info = jax.tree.map(zero, f_info_struct)
+        return _BoxState(y, f_info, jnp.zeros(y.shape, bool), jnp.ones(y.shape))
+
+    def query(self, y, f_info, state):
+        del state
+        g = f_info.jac.transpose().mv(f_info.residual)
+        held = ((y <= self.lower) & (g > 0)) | ((y >= self.upper) & (g < 0))
+        if not self.marquardt:
+            return _BoxState(y, f_info, held, jnp.ones(y.shape))
+        norms = jnp.linalg.norm(f_info.jac.as_matrix(), axis=0)
+        norms = jnp.maximum(norms, 1e-6 * jnp.max(norms) + jnp.finfo(norms.dtype).tiny)
+        return _BoxState(y, f_info, held, norms)
+
+    def step(self, step_size, state):
+        tiny = step_size <= jnp.finfo(step_size.dtype).eps
+        first = FIRST_DAMPING if self.marquardt else 1.0
+        damping = jnp.where(tiny, jnp.finfo(step_size.dtype).max,
+                            first / jnp.where(tiny, 1, step_size))
+        f_info = state.f_info
+        operator = lx.FunctionLinearOperator(
+            _BoxedStep(f_info.jac, state.held, state.norms, damping), f_info.jac.in_structure()
+        )
+        vector = (f_info.residual, jnp.zeros_like(state.y))
+        sol = lx.linear_solve(operator, vector, self.linear_solver, throw=False)
+        trial = jnp.clip(state.y - jnp.where(state.held, 0.0, sol.value), self.lower, self.upper)
+        return trial - state.y, optx.RESULTS.promote(sol.result)
+
+
+class BoundedLevenbergMarquardt(optx.AbstractGaussNewton):
+    """optimistix's Levenberg–Marquardt (trust-region damping, QR solve of the damped system)
+    with :class:`BoxedDampedNewton` as its descent: every iterate stays in the box."""
+
+    rtol: float
+    atol: float
+    descent: BoxedDampedNewton
+    norm: Callable = optx.max_norm
+    search: optx.ClassicalTrustRegion = eqx.field(default_factory=optx.ClassicalTrustRegion)
+    verbose: Callable = eqx.field(static=True, default=lambda **_: None)
+
+
+STALL_STEPS = 6
+"""With ``ftol``: a solve also stops after this many rejected steps in a row (the trust region
+shrunk 4⁶ ≈ 4,000-fold: the cost no longer falls above round-off)."""
+
+
+def _bounded_solve(residuals: Residuals, args, start, lower, upper, free, rtol, atol, ftol,
+                   max_steps, marquardt=False):
+    """:class:`BoundedLevenbergMarquardt` stepped in a loop that also stops on ``ftol``."""
+    fn = dense_jacobian(lambda y: residuals(jnp.where(free, y, start), args))
+
+    def with_aux(y, _):
+        return fn(y), None
+
+    solver = BoundedLevenbergMarquardt(rtol, atol, BoxedDampedNewton(lower, upper, marquardt))
+    tags = frozenset()
+    state = solver.init(with_aux, start, None, {}, jax.eval_shape(fn, start), None, tags)
+    state, static = eqx.partition(state, eqx.is_array)  # the loop carries arrays only
+
+    def proceed(carry):
+        *_, done, k = carry
+        return ~done & (k < max_steps)
+
+    def step(carry):
+        y, state, cost_start, cost, _, k = carry
+        state = eqx.combine(state, static)
+        y, state, _ = solver.step(with_aux, y, None, {}, state, tags)
+        new_cost = jnp.sum(state.f_info.residual**2)  # at y, the last accepted point
+        accepted = state.num_steps_since_acceptance == 0
+        small = accepted & (k > 0) & (cost - new_cost <= ftol * new_cost)
+        stalled = state.num_steps_since_acceptance >= STALL_STEPS
+        small, stalled = (ftol > 0) & small, (ftol > 0) & stalled
+        converged, _ = solver.terminate(with_aux, y, None, {}, state, tags)
+        cost_start = jnp.where(k == 0, new_cost, cost_start)  # the first step evaluates the start
+        done = converged | small | stalled
+        return y, eqx.filter(state, eqx.is_array), cost_start, new_cost, done, k + 1
+
+    inf = jnp.array(jnp.inf)
+    init = (start, state, inf, inf, jnp.array(False), jnp.array(0))
+    y, state, cost_start, cost, done, steps = jax.lax.while_loop(proceed, step, init)
+    state = eqx.combine(state, static)
+    result = optx.RESULTS.where(done, state.result, optx.RESULTS.nonlinear_max_steps_reached)
+    # the residuals and Jacobian the last accepted step evaluated, at y
+    linearization = (state.f_info.residual, state.f_info.jac.as_matrix())
+    return jnp.where(free, y, start), result, steps, cost_start, cost, linearization
+
+
+_bounded_solve_jit = eqx.filter_jit(_bounded_solve)
+
+
+@dataclass(frozen=True)
+class BoundedSolution:
+    """Outcome of :func:`bounded_least_squares` (costs are ``Σ r²``). ``linearization`` is the
+    residual vector and its Jacobian at ``value`` from the solver's last accepted step (None
+    where the start was kept)."""
+
+    value: np.ndarray
+    cost_start: float
+    cost: float
+    result: str
+    message: str
+    steps: int
+    linearization: tuple[np.ndarray, np.ndarray] | None = field(default=None, repr=False)
+
+
+def bounded_least_squares(
+    residuals: Residuals,
+    args: object,
+    start: ArrayLike,
+    lower: ArrayLike,
+    upper: ArrayLike,
+    *,
+    free: ArrayLike | None = None,
+    rtol: float,
+    atol: float,
+    ftol: float = 0.0,
+    max_steps: int,
+    marquardt: bool = False,
+    solve: Callable | None = None,
+) -> BoundedSolution:
+    """Levenberg–Marquardt (:class:`BoundedLevenbergMarquardt`) of ``residuals(p, args)`` on
+    ``lower ≤ p ≤ upper``.
+
+    ``free`` (default all) marks the fitted coordinates; the others keep their start values
+    (their Jacobian columns vanish). Arrays change nothing compiled: one compilation serves
+    every fitted set, start and box of the same size. It stops on optimistix's ``rtol``/``atol``
+    (step and residuals), after ``max_steps``, or (``ftol > 0``) when an accepted step lowers
+    the cost by less than ``ftol`` of it or :data:`STALL_STEPS` steps in a row are rejected.
+    ``marquardt`` chooses the damping (:class:`BoxedDampedNewton`).
+    ``solve`` is ``_bounded_solve`` compiled ahead by the caller (to time it). The value is the
+    last accepted point if its cost is finite and below the start's, else the start.
+    """
+    solve = _bounded_solve_jit if solve is None else solve
+    p = jnp.asarray(start, dtype=jnp.float64)
+    lower, upper = jnp.asarray(lower, dtype=jnp.float64), jnp.asarray(upper, dtype=jnp.float64)
+    free = jnp.ones(p.shape, bool) if free is None else jnp.asarray(free, dtype=bool)
+    p = jnp.where(free, jnp.clip(p, lower, upper), p)
+    end, result, steps, cost_start, cost, linearization = solve(
+        residuals, args, p, lower, upper, free, rtol, atol, ftol, max_steps, marquardt
+    )
+    cost_start, cost = float(cost_start), float(cost)
+    cost_start = cost_start if math.isfinite(cost_start) else math.inf
+    better = math.isfinite(cost) and cost < cost_start
+    return BoundedSolution(
+        value=np.asarray(end if better else p),
+        cost_start=cost_start,
+        cost=cost if better else cost_start,
+        result=_result_name(result),
+        message=_result_message(result),
+        steps=int(steps),
+        linearization=tuple(map(np.asarray, linearization)) if better else None,
+    )
+
+
+System = Callable[[np.ndarray], tuple[np.ndarray, np.ndarray]]
+"""``system(p)``: the residual vector and its Jacobian at ``p``, computed on the host."""
+
+_SYSTEMS: dict[int, System] = {}
+_TOKENS = itertools.count()
+
+
+def _run_system(token, p):
+    # a callback runs under jax.default_device(its device): reset it, or every jitted function
+    # the system calls compiles a second time for that context
+    with jax.default_device(None), jax.disable_jit(False):
+        r, jac = _SYSTEMS[int(token)](np.asarray(p))
+    return np.asarray(r, dtype=np.float64), np.asarray(jac, dtype=np.float64)
+
+
+def _call_system(p, token, template):
+    shapes = (jax.ShapeDtypeStruct(template.shape, p.dtype),
+              jax.ShapeDtypeStruct(template.shape + p.shape, p.dtype))
+    return jax.pure_callback(_run_system, shapes, token, p, vmap_method="sequential")
+
+
+@jax.custom_jvp
+def _system_residuals(p, token, template):
+    return _call_system(p, token, template)[0]
+
+
+@_system_residuals.defjvp
+def _system_jvp(primals, tangents):
+    r, jac = _call_system(*primals)
+    return r, jac @ tangents[0]
+
+
+def _host_residuals(p: Array, args: tuple) -> Array:
+    return _system_residuals(p, *args)
+
+
+def bounded_least_squares_of(system: System, size: int, start: ArrayLike, lower: ArrayLike,
+                             upper: ArrayLike, **options) -> BoundedSolution:
+    """:func:`bounded_least_squares` of a residual vector (length ``size``) and Jacobian that
+    the caller computes (``system``, called back from the compiled solve).
+
+    The solve compiles without the model in it (a few seconds, once per size) and the
+    caller's own compiled Jacobian serves it: discovery's forward-mode block, which its score
+    tests compile anyway, instead of a second compilation of the simulator's derivatives.
+    On a single usable core the solve runs uncompiled instead: XLA's CPU runtime then has one
+    worker, which a compiled solve would hold while the system's compiled code waits for it.
+    """
+    token = next(_TOKENS)
+    _SYSTEMS[token] = system
+    try:
+        args = (jnp.asarray(token), jnp.zeros(size))
+        if usable_cores() > 1:
+            return bounded_least_squares(_host_residuals, args, start, lower, upper, **options)
+        with jax.disable_jit():
+            return bounded_least_squares(
+                _host_residuals, args, start, lower, upper, solve=_bounded_solve, **options
+            )
+    finally:
+        del _SYSTEMS[token]
+
+
+
+__all__ = [
+    "RESULT_NAMES",
+    "FIRST_DAMPING",
+    "STALL_STEPS",
+    "BoxedDampedNewton",
+    "BoundedLevenbergMarquardt",
+    "BoundedSolution",
+    "bounded_least_squares",
+    "bounded_least_squares_of",
+    "dense_jacobian",
+    "in_fit_words",
+]
