@@ -175,3 +175,21 @@ def test_a_refinement_out_of_steps_warns_in_the_words_of_a_fit(monkeypatch, tmp_
         "1) may let it converge"
     ]
     assert all(line.startswith(WARNING) for line in err.splitlines())
+
+
+@pytest.mark.parametrize(
+    ("argv", "message"),
+    [
+        (["simulate", "--input", "pulse", "--effects", "payload", "--out", "x.csv"],
+         "--effects is now --effect NAME (repeatable)"),
+        (["simulate", "--input", "pulse", "--noise", "--out", "x.csv"],
+         "--noise is now --add-noise"),
+        (["discover", "x.csv", "--effects", "payload"], "--effects is now --candidates"),
+        (["discover", "x.csv", "--progress"], "--progress is now the default"),
+    ],
+)
+def test_an_option_that_was_renamed_names_its_new_name(argv, message, capsys):
+    """One name, one meaning: ``--effect`` adds to the model, ``--noise`` gives noise levels,
+    ``--candidates`` lists discover's candidates; an old spelling fails in one line."""
+    assert main(argv) == 2
+    assert message in capsys.readouterr().err.splitlines()[-1]

@@ -25,7 +25,7 @@ def rotflex_log(tmp_path_factory):
     triangular voltage; encoder and strain gauge with their noise and quantisation)."""
     path = tmp_path_factory.mktemp("rotflex") / "log.csv"
     assert main(["simulate", "--arm", ROTFLEX_FILE, "--input", "triangular", "--duration", "1.5",
-                 "--rest", "0.1", "--noise", "--seed", "3", "--out", str(path)]) == 0
+                 "--rest", "0.1", "--add-noise", "--seed", "3", "--out", str(path)]) == 0
     return path
 
 
@@ -134,7 +134,7 @@ def test_discover_names_a_torque_offset_on_encoder_and_strain_gauge(tmp_path, ca
     log, start = _offset_log(tmp_path, -0.006)  # a larger bias bends the link at t0 already
     out = tmp_path / "discover.json"
     assert main(["discover", str(log), "--arm", ROTFLEX_FILE, "--initial", str(start),
-                 "--effects", "torque_offset,gravity", "--max-steps", "1",
+                 "--candidates", "torque_offset,gravity", "--max-steps", "1",
                  "--json", str(out)]) == 0
     assert "deflection_angle NRMSE %" in capsys.readouterr().out
     result = json.loads(out.read_text())

@@ -17,7 +17,7 @@ from jaxflex.simulation import simulate
 
 def test_writes_the_simulated_record_and_refuses_to_overwrite(tmp_path, capsys):
     out = tmp_path / "pulse.csv"
-    argv = ["simulate", "--input", "pulse", "--duration", "0.5", "--effects", "payload",
+    argv = ["simulate", "--input", "pulse", "--duration", "0.5", "--effect", "payload",
             "--set", "m_p=0.03", "--set", "E=6e10", "--out", str(out)]
     assert main(argv) == 0
     assert "wrote" in capsys.readouterr().out

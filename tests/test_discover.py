@@ -312,7 +312,7 @@ def test_cli_discover_writes_the_json_contract(payload_case, tmp_path, capsys):
     records, _, _ = payload_case
     files, initial = saved_case(records, tmp_path)
     out = tmp_path / "out.json"
-    code = main(["discover", *files, "--initial", str(initial), "--effects",
+    code = main(["discover", *files, "--initial", str(initial), "--candidates",
                  "payload,delay,gravity", "--max-steps", "0", "--json", str(out),
                  "--report", str(tmp_path / "report")])
     assert code == 0
@@ -326,7 +326,7 @@ def test_cli_discover_writes_the_json_contract(payload_case, tmp_path, capsys):
     assert data["ranking"] == [] and data["unexplained"]["frequency_hz"]
     assert data["settings"]["max_steps"] == 0
     assert "UNEXPLAINED" in capsys.readouterr().out
-    assert main(["discover", *files, "--effects", "nope"]) == 2
+    assert main(["discover", *files, "--candidates", "nope"]) == 2
     assert "unknown effect 'nope'" in capsys.readouterr().err
     assert main(["discover", *files, "--initial", str(initial), "--json", str(out)]) == 2
     assert "exists" in capsys.readouterr().err

@@ -119,13 +119,13 @@ VALUES = st.sampled_from(["0", "-1", "1e400", "nan", "inf", "1e-320", "abc", "",
                           "1e7", "10000000000000000000000", "de,de", "x=1", "J_h=1:0",
                           "E=nan", "dt=0.1", "n_elements=0.5", "J_h=1e-300:1e300"])
 OPTIONS = {
-    "simulate": ["--input", "--amplitude", "--set", "--effects", "--duration", "--dt", "--seed",
+    "simulate": ["--input", "--amplitude", "--set", "--effect", "--duration", "--dt", "--seed",
                  "--plot"],
     "design": ["--duration", "--max-torque", "--rms-torque", "--max-angle", "--max-speed",
                "--harmonics", "--max-frequency", "--seed", "--restarts", "--plot"],
     "identify": ["--generations", "--population", "--effect", "--bound", "--fix", "--weight",
                  "--method", "--seed", "--refine-starts", "--plot"],
-    "discover": ["--effects", "--max-steps", "--alpha", "--generations", "--seed", "--bound",
+    "discover": ["--candidates", "--max-steps", "--alpha", "--generations", "--seed", "--bound",
                  "--fix", "--weight", "--effect", "--format"],
 }
 

@@ -105,7 +105,7 @@ def test_an_unknown_arm_name_stops_a_command_before_any_work(tmp_path, capsys):
 
 def test_a_command_given_the_name_writes_what_it_writes_given_the_file(tmp_path):
     by_name, by_file = tmp_path / "name.csv", tmp_path / "file.csv"
-    common = ["simulate", "--input", "pulse", "--duration", "0.2", "--noise", "--seed", "1"]
+    common = ["simulate", "--input", "pulse", "--duration", "0.2", "--add-noise", "--seed", "1"]
     assert main([*common, "--arm", "quanser_rotflex", "--out", str(by_name)]) == 0
     assert main([*common, "--arm", str(arm_path("quanser_rotflex")), "--out", str(by_file)]) == 0
     text = by_name.read_text()

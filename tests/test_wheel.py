@@ -169,7 +169,7 @@ def _an_invented_rig_end_to_end(jaxflex: list[str], work: Path, env: dict) -> No
     a report, from the installed wheel."""
     (work / "ruler.toml").write_text(RULER)
     _run([*jaxflex, "simulate", "--arm", "ruler.toml", "--input", "pulse", "--amplitude", "200",
-          "--rest", "0.2", "--noise", "--seed", "2", "--out", "ruler_log.csv"], work, env)
+          "--rest", "0.2", "--add-noise", "--seed", "2", "--out", "ruler_log.csv"], work, env)
     _run([*jaxflex, "identify", "ruler_log.csv", "--arm", "ruler.toml", "--window", "auto",
           "--generations", "4", "--population", "12", "--quiet", "--out", "ruler_fit.json",
           "--plot", "ruler_fit.png"], work, env)

@@ -87,10 +87,25 @@ PAIR_OPTIONS: tuple[PairOption, ...] = (
 )
 
 
-def add_fit_options(p: argparse.ArgumentParser) -> None:
-    """``--effect`` and the :data:`PAIR_OPTIONS` on a command's parser."""
+def add_effect_option(p: argparse.ArgumentParser) -> None:
+    """``--effect NAME``: the model holds this effect (every command that builds a model)."""
     p.add_argument("--effect", action="append", default=[], metavar="NAME",
                    help="add a physical effect to the model (repeatable), e.g. payload")
+
+
+def add_renamed_option(p: argparse.ArgumentParser, old: str, new: str) -> None:
+    """A hidden ``old`` option that fails with one line naming the option that replaced it."""
+
+    class Renamed(argparse.Action):
+        def __call__(self, parser, namespace, values, option_string=None):
+            parser.error(f"{old} is now {new}")
+
+    p.add_argument(old, nargs="?", action=Renamed, help=argparse.SUPPRESS)
+
+
+def add_fit_options(p: argparse.ArgumentParser) -> None:
+    """``--effect`` and the :data:`PAIR_OPTIONS` on a command's parser."""
+    add_effect_option(p)
     for o in PAIR_OPTIONS:
         p.add_argument(o.option, dest=f"pairs_{o.keyword}", action="append", default=[],
                        metavar=o.metavar, help=o.help)
@@ -159,6 +174,7 @@ def add_record_options(p: argparse.ArgumentParser) -> None:
 
 
 __all__ = [
-    "PAIR_OPTIONS", "PairOption", "add_fit_options", "add_quiet_option", "add_record_options",
+    "PAIR_OPTIONS", "PairOption", "add_effect_option", "add_fit_options", "add_quiet_option",
+    "add_record_options", "add_renamed_option",
     "effects_from", "finite_number", "fit_keywords", "pair_values",
 ]

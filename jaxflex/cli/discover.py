@@ -34,6 +34,7 @@ from jaxflex.cli._options import (
     add_fit_options,
     add_quiet_option,
     add_record_options,
+    add_renamed_option,
     fit_keywords,
 )
 from jaxflex.cli.identify import sources
@@ -48,8 +49,9 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                    help="record files (.csv/.npz) or directories of them to fit")
     p.add_argument("--holdout", nargs="+", metavar="DATA", default=(),
                    help="records held out to validate every step")
-    p.add_argument("--effects", metavar="NAME,...",
+    p.add_argument("--candidates", metavar="NAME,...",
                    help="candidate effects, comma-separated (default: the whole library)")
+    add_renamed_option(p, "--effects", "--candidates")
     p.add_argument("--max-steps", type=int, default=4, metavar="N",
                    help="add at most N effects (default: %(default)s)")
     p.add_argument("--alpha", type=float, default=0.01,
@@ -69,7 +71,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--overwrite", action="store_true", help="replace existing output files")
     add_record_options(p)
     add_quiet_option(p)
-    p.add_argument("--progress", action="store_true", help=argparse.SUPPRESS)  # the default now
+    add_renamed_option(p, "--progress", "the default (--quiet turns it off)")
     add_arm_arguments(p)
     p.set_defaults(func=run)
 
@@ -83,8 +85,8 @@ def run(args: argparse.Namespace) -> int:
     if not 0 < args.alpha < 1:
         raise UsageError(f"--alpha must lie in (0, 1), got {args.alpha}")
     candidates = None
-    if args.effects:
-        candidates = [n.strip() for n in args.effects.split(",") if n.strip()]
+    if args.candidates:
+        candidates = [n.strip() for n in args.candidates.split(",") if n.strip()]
         candidate_set(candidates)  # unknown names fail here, listing the known ones
     keywords = fit_keywords(args, discover)
     initial, fit = None, None

@@ -23,7 +23,7 @@ from jaxflex.cli._checks import (
     positive_float,
     seed,
 )
-from jaxflex.cli._options import finite_number
+from jaxflex.cli._options import add_effect_option, add_renamed_option, finite_number
 from jaxflex.signals import INPUT_NAMES
 
 TIMING_SETTINGS = ("dt", "duration")
@@ -50,16 +50,16 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         metavar="NAME=VALUE",
         help="override a parameter (E, J_h, …, or an effect's) or a testbed setting (length, …)",
     )
-    parser.add_argument(
-        "--effects", default="", help="comma-separated physical effects to add (e.g. payload)"
-    )
+    add_effect_option(parser)
+    add_renamed_option(parser, "--effects", "--effect NAME (repeatable)")
     parser.add_argument("--duration", type=positive_float,
                         help="seconds (default 2.0, or the arm's sampling.duration)")
     parser.add_argument("--dt", type=positive_float,
                         help="sample step, s (default 1e-3, or the arm's sampling.dt)")
-    parser.add_argument("--noise", action="store_true",
+    parser.add_argument("--add-noise", action="store_true",
                         help="add the testbed's sensor noise (with --arm: each sensor's noise "
                              "and quantisation)")
+    add_renamed_option(parser, "--noise", "--add-noise")
     parser.add_argument("--seed", type=seed, default=0, help="noise seed (default 0)")
     add_max_samples(parser)
     parser.add_argument("--out", required=True, help="record CSV (or .npz) to write")
@@ -84,8 +84,8 @@ def parse_assignments(items: list[str]) -> dict[str, float]:
     return values
 
 
-def build_model_and_params(assignments: dict[str, float], effects: str, dt: float, duration: float,
-                           rig=None):
+def build_model_and_params(assignments: dict[str, float], effects: list[str], dt: float,
+                           duration: float, rig=None):
     """The model (the rig, default the reference, with testbed settings and effects applied)
     and its full parameter set."""
     from jaxflex.cli._arm import with_effects
@@ -93,7 +93,7 @@ def build_model_and_params(assignments: dict[str, float], effects: str, dt: floa
     from jaxflex.testbed import TESTBED_SETTINGS
 
     rig = Model() if rig is None else rig
-    model = with_effects(rig, [e.strip() for e in effects.split(",") if e.strip()], "--effects")
+    model = with_effects(rig, effects, "--effect")
     for name in TIMING_SETTINGS:
         if name in assignments:
             raise UsageError(f"--set {name}: use --{name} instead")
@@ -140,7 +140,7 @@ def run(args: argparse.Namespace) -> int:
     n_elements = assignments.get("n_elements", 10)
     check_size(args.duration / args.dt + 1, f"--duration {args.duration:g} s at --dt {args.dt:g} s",
                n_elements=int(n_elements), limit=max_samples(args.max_samples))
-    model, params = build_model_and_params(assignments, args.effects, args.dt, args.duration,
+    model, params = build_model_and_params(assignments, args.effect, args.dt, args.duration,
                                            rig)
     time, torque = reference_input(args.input, args.amplitude, args.duration, args.dt)
     metadata = {
@@ -148,13 +148,13 @@ def run(args: argparse.Namespace) -> int:
         "input": args.input,
         "parameters": ", ".join(f"{k}={v!r}" for k, v in params.items()),
         "effects": ", ".join(model.effect_names) or "none",
-        "noise": f"testbed sensor noise, seed {args.seed}" if args.noise else "none",
+        "noise": f"testbed sensor noise, seed {args.seed}" if args.add_noise else "none",
     }
     record = simulated_record(
         model, params, args.input, time, torque, args.dt,
         extras=("joint_velocity", "tip_deflection"), metadata=metadata,
     )
-    if args.noise:
+    if args.add_noise:
         record = add_measurement_noise(record, args.seed)
     with all_or_nothing():
         save_record(record, out, overwrite=args.overwrite)
@@ -193,8 +193,7 @@ def simulate_logged(args: argparse.Namespace, arm, out, plot) -> int:
     check_size(n_rest + args.duration / args.dt + 1,
                f"--rest {args.rest:g} s and --duration {args.duration:g} s at --dt {args.dt:g} s",
                n_elements=arm.testbed.n_elements, limit=max_samples(args.max_samples))
-    model = with_effects(arm, [e.strip() for e in args.effects.split(",") if e.strip()],
-                         "--effects")
+    model = with_effects(arm, args.effect, "--effect")
     space = model.space
     unknown = sorted(set(assignments) - set(space.names))
     if unknown:
@@ -217,11 +216,11 @@ def simulate_logged(args: argparse.Namespace, arm, out, plot) -> int:
                  f"{n_rest * args.dt:g} s at rest",
         "parameters": ", ".join(f"{k}={float(v)!r}" for k, v in params.items()),
         "effects": ", ".join(model.effect_names) or "none",
-        "noise": f"each sensor's noise and quantisation, seed {args.seed}" if args.noise
+        "noise": f"each sensor's noise and quantisation, seed {args.seed}" if args.add_noise
         else "none",
     }
     record = logged_record(model, params, time, signal,
-                           seed=args.seed if args.noise else None, name=args.input,
+                           seed=args.seed if args.add_noise else None, name=args.input,
                            metadata=metadata)
     with all_or_nothing():
         save_record(record, out, overwrite=args.overwrite)
