@@ -96,10 +96,11 @@ def radau_outputs(model, params, torque, dt):
 
 def logger_records(folder: Path, logger: Logger, effects: dict, outputs=jaxflex_outputs,
                    seed: int = 0) -> tuple[Dataset, dict[str, float]]:
-    """The records of the truth (base ``TRUTH`` plus ``effects``: name → {param: value}) as
-    ``logger`` writes them, and the noise floor per channel: the NRMSE (%) of the noise-free
-    truth over the first 2 s, where discover reports its NRMSE, mean over the records."""
-    model = Model().with_effects(*(get_effect(e) for e in effects))
+    """The records of the truth (base ``TRUTH`` plus ``effects``: effect or name →
+    {param: value}) as ``logger`` writes them, and the noise floor per channel: the NRMSE (%)
+    of the noise-free truth over the first 2 s, where discover reports its NRMSE, mean over the
+    records."""
+    model = Model().with_effects(*(get_effect(e) if isinstance(e, str) else e for e in effects))
     params = {**TRUTH, **{k: v for values in effects.values() for k, v in values.items()}}
     dt = 1.0 / logger.rate
     rng = np.random.default_rng(seed)
