@@ -93,7 +93,7 @@ def assert_at_noise_floor(report, floor, factor=1.3):
 
 
 def _slot(spec):
-    return Slot(0, 0, Stribeck(), (spec.name,), (spec.name,))
+    return Slot(0, 0, get_effect("payload"), (spec.name,), (spec.name,))
 
 
 @pytest.mark.parametrize("z", [0.5, 1.7, 3.2])

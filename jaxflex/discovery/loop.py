@@ -300,7 +300,8 @@ def discover(
             starts: dict[str, tuple[int, np.ndarray]] = {}
             scanned = False
             while True:
-                for r in contenders[:max_confirm]:
+                # the scan's drops are first-order: every candidate it finds is refitted
+                for r in contenders if scanned else contenders[:max_confirm]:
                     conf, slot, x1, cost1 = confirm(engine, x, cost, active,
                                                     names.index(r.effect), r.estimate, alpha / m,
                                                     starts.get(r.effect))
