@@ -27,7 +27,8 @@ def hidden(effects: dict, seed: int = 0, inputs=("triangular", "pulse", "half_si
     model and parameters."""
     instances = [get_effect(e) if isinstance(e, str) else e for e in effects]
     model = Model().with_effects(*instances)
-    params = dict(TRUTH)
+    # a shape parameter (a Stribeck velocity) where the effect instance puts it
+    params = {**{s.name: s.reference for s in model.space.specs if s.null is None}, **TRUTH}
     for values in effects.values():
         params.update(values)
     records = make_records(model, params, inputs=inputs, seed=seed, amplitudes=amplitudes)

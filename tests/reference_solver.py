@@ -2,9 +2,9 @@
 
 Nothing here uses the modal basis or the stepping scheme of ``jaxflex.simulation``: it integrates
 ``M q'' + D q' + K q = e_θ(τ − τ_f(θ')) − g sin(φ) cos(θ) F`` (a tilted plane, when the model has
-gravity) in physical coordinates, restarting wherever the
-torque sample changes so the zero-order hold is exact, with tight tolerances and the analytic
-Jacobian.
+gravity; ``τ_f`` with Stribeck friction, when it has that) in physical coordinates, restarting
+wherever the torque sample changes so the zero-order hold is exact, with tight tolerances and
+the analytic Jacobian.
 """
 
 from __future__ import annotations
@@ -42,19 +42,31 @@ def radau_states(model: Model, params, torque, dt, rtol=1e-9, atol=1e-11):
     mk, md, me = inv_mass @ stiffness, inv_mass @ damping, inv_mass[:, 0]
     b_v, tau_c = float(params["b_v"]), float(params["tau_c"])
     omega_s = model.testbed.omega_s
+    # Stribeck friction: delta_tau_s exp(-(|v|/v_s)^delta) tanh(v/omega_s) (jaxflex.effects)
+    stribeck = next((e for e in model.effects if e.name == "stribeck"), None)
+    excess = float(params["delta_tau_s"]) if stribeck is not None else 0.0
+    v_s = float(params.get("v_s", stribeck.v_s)) if stribeck is not None else 1.0
+    delta = stribeck.delta if stribeck is not None else 2.0
     # a tilted plane: the load -g sin(phi) cos(theta) on the first moment (jaxflex.effects.Gravity)
     tilt = GRAVITY * math.sin(float(params["phi"])) if "gravity" in model.effect_names else 0.0
     moment = inv_mass @ np.asarray(structure.first_moment)
 
     def friction(v):
-        return b_v * v + tau_c * np.tanh(v / omega_s)
+        fade = excess * np.exp(-((np.abs(v) / v_s) ** delta))
+        return b_v * v + (tau_c + fade) * np.tanh(v / omega_s)
+
+    def friction_slope(v):
+        fade = excess * np.exp(-((np.abs(v) / v_s) ** delta))
+        fade_slope = -fade * delta * (np.abs(v) / v_s) ** (delta - 1.0) * np.sign(v) / v_s
+        return (b_v + (tau_c + fade) / omega_s * (1.0 - np.tanh(v / omega_s) ** 2)
+                + fade_slope * np.tanh(v / omega_s))
 
     def acceleration(x, tau):
         q, v = x[:n], x[n:]
         return me * (tau - friction(v[0])) - md @ v - mk @ q - tilt * math.cos(q[0]) * moment
 
     def jacobian(x):
-        slope = b_v + tau_c / omega_s * (1.0 - np.tanh(x[n] / omega_s) ** 2)
+        slope = friction_slope(x[n])
         lower_right = -md.copy()
         lower_right[:, 0] -= me * slope
         lower_left = -mk.copy()

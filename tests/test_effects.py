@@ -64,8 +64,10 @@ def base_outputs(pulse):
 
 
 def _with(model: Model, **values) -> dict:
-    """Reference base parameters, every effect parameter at its null, then ``values``."""
-    return {**reference_parameters(), **model.space.nulls(), **values}
+    """Reference base parameters, every effect parameter at its null (a shape parameter
+    without one, the Stribeck velocity, at its reference), then ``values``."""
+    return {**model.space.reference(), **reference_parameters(), **model.space.nulls(),
+            **values}
 
 
 def _assert_same_outputs(a, b, rtol):
@@ -84,11 +86,15 @@ def test_registry_holds_the_six_effects_with_documented_parameters():
         for spec in cls.parameters:
             gain = cls.name in ("sensor_gain", "drive_gain")
             null = 1.0 if gain else 0.0  # a gain vanishes at its reference, 1 by default
+            null = None if spec.name == "v_s" else null  # a shape: the law vanishes without it
             assert spec.null == null and spec.lower <= spec.reference <= spec.upper, spec.name
     assert [s.name for s in Payload().parameters] == ["m_p"]
     assert [s.name for s in Payload(rotary=True).parameters] == ["m_p", "J_p"]
     assert isinstance(get_effect("payload", rotary=True), Payload)
     assert [e.v_s for e in Stribeck.grid()] == [0.03, 0.1, 0.3]
+    # the Stribeck velocity is fitted from where the instance puts it
+    assert [(s.name, s.reference) for s in Stribeck(v_s=0.2).parameters] == [
+        ("delta_tau_s", 0.03), ("v_s", 0.2)]
 
 
 def test_get_effect_names_the_unknown_effect_and_lists_the_known_ones():
@@ -139,7 +145,7 @@ def test_all_six_at_their_nulls_simulate_exactly_the_base_model(pulse, base_outp
 def test_composed_effects_vmap_and_reduce_to_the_base_row(pulse, base_outputs):
     model = Model().with_effects(Payload(), RootCompliance(), Stribeck(), Delay(), Gravity(),
                                  MotorLag())
-    assert model.space.names[6:] == ("m_p", "c_r", "delta_tau_s", "d", "phi", "T_m")
+    assert model.space.names[6:] == ("m_p", "c_r", "delta_tau_s", "v_s", "d", "phi", "T_m")
     null, reference = _with(model), {**_with(model), **model.space.reference()}
     batch = {k: jnp.stack([null[k], reference[k]]) for k in model.space.names}
     out = simulate_batch(model, batch, pulse)

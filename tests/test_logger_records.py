@@ -7,7 +7,8 @@ noise, and written to CSV as a data logger writes it: with a fixed number of sig
 or as float32 numbers. ``discover`` starts near the truth (as in ``test_discover``), estimates
 every noise level from the files, and must add nothing to clean records, name a hidden payload or
 a tilted plane and nothing beside it, and end within 1.3× the noise floor: the NRMSE of the
-noise-free truth against the written records.
+noise-free truth against the written records. Slow cases add a compliant clamp and Stribeck
+friction whose velocity lies between the discovery grid's starts, read by a coarse encoder.
 
 A few representative cases run by default; the whole matrix (6, 7, 9 and 17 digits, float32,
 1024–10000 counts, 500 Hz and 1 kHz, 1.5–3 s) is marked slow.
@@ -27,7 +28,7 @@ from reference_solver import radau_reference
 from jaxflex.comparison import DEFAULT_T_END
 from jaxflex.data import Dataset, load_record
 from jaxflex.discovery import discover
-from jaxflex.effects import get_effect
+from jaxflex.effects import Stribeck, get_effect
 from jaxflex.metrics import nrmse
 from jaxflex.model import Model
 from jaxflex.signals import reference_input
@@ -36,7 +37,10 @@ from jaxflex.synthetic import ACCELEROMETER_SIGMA
 
 INPUTS = ("triangular", "pulse", "half_sine")
 PAYLOAD = 0.03  # kg, the hidden effect
-TILT = 0.06  # rad, the motion plane's tilt: the other hidden effect
+TILT = 0.06  # rad, the motion plane's tilt: another hidden effect
+COMPLIANCE = 0.04  # rad/(N m), a compliant clamp: another (it moves the first mode far)
+STRIBECK = Stribeck(v_s=0.2)  # a Stribeck velocity between the discovery grid's starts
+EXCESS = 0.04  # N m, its breakaway torque above the Coulomb level
 CHANNELS = ("joint_angle", "tip_acceleration")
 FLOOR_FACTOR = 1.3
 
@@ -82,6 +86,8 @@ MATRIX = (
 DEFAULT_CLEAN = MATRIX[0]
 #: The layout of the clean default (and of test_discover), so the compiled Jacobian is shared.
 DEFAULT_PAYLOAD = Logger(9, 4096, 1000.0, 2.0)
+#: A coarse encoder (2000 counts, its grid offset) at 1 kHz, in 9 digits and in float32.
+COARSE = (Logger(9, 2000, 1000.0, 2.0), Logger(None, 2000, 1000.0, 2.0))
 
 
 def jaxflex_outputs(model, params, torque, dt):
@@ -96,10 +102,11 @@ def radau_outputs(model, params, torque, dt):
 
 def logger_records(folder: Path, logger: Logger, effects: dict, outputs=jaxflex_outputs,
                    seed: int = 0) -> tuple[Dataset, dict[str, float]]:
-    """The records of the truth (base ``TRUTH`` plus ``effects``: name → {param: value}) as
-    ``logger`` writes them, and the noise floor per channel: the NRMSE (%) of the noise-free
-    truth over the first 2 s, where discover reports its NRMSE, mean over the records."""
-    model = Model().with_effects(*(get_effect(e) for e in effects))
+    """The records of the truth (base ``TRUTH`` plus ``effects``: effect or name →
+    {param: value}) as ``logger`` writes them, and the noise floor per channel: the NRMSE (%)
+    of the noise-free truth over the first 2 s, where discover reports its NRMSE, mean over the
+    records."""
+    model = Model().with_effects(*(get_effect(e) if isinstance(e, str) else e for e in effects))
     params = {**TRUTH, **{k: v for values in effects.values() for k, v in values.items()}}
     dt = 1.0 / logger.rate
     rng = np.random.default_rng(seed)
@@ -204,3 +211,24 @@ def test_clean_radau_float32_records_add_nothing(tmp_path):
 @pytest.mark.parametrize("logger", [MATRIX[2], MATRIX[1]], ids=str)
 def test_radau_records_payload(tmp_path, logger):
     run_payload(tmp_path, logger, radau_outputs)
+
+
+@pytest.mark.slow
+def test_radau_records_name_a_compliant_clamp(tmp_path):
+    """The compliant clamp lowers the first mode far: the base fit softens E to follow it and
+    the score of c_r points the wrong way at the null; its profile finds it."""
+    records, floor = logger_records(tmp_path, COARSE[0],
+                                    {"root_compliance": {"c_r": COMPLIANCE}}, radau_outputs)
+    check_found(discover(records, initial=START), floor, "root_compliance", "c_r", COMPLIANCE)
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("logger", COARSE, ids=str)
+def test_radau_records_fit_the_stribeck_velocity(tmp_path, logger):
+    """Stribeck friction whose velocity is none of the grid's starts: the velocity is fitted
+    with the breakaway torque, and the fit ends at the noise floor."""
+    records, floor = logger_records(tmp_path, logger, {STRIBECK: {"delta_tau_s": EXCESS}},
+                                    radau_outputs)
+    report = discover(records, initial=START)
+    check_found(report, floor, "stribeck", "delta_tau_s", EXCESS)
+    assert report.params["v_s"] == pytest.approx(STRIBECK.v_s, rel=0.05)

@@ -36,7 +36,8 @@ Score (Lagrange-multiplier) test
     A Stribeck velocity ``v_s`` is undefined under the null (``Δτ_s = 0`` switches every ``v_s``
     off): the test profiles it over :meth:`~jaxflex.effects.Stribeck.grid` — a score statistic
     per grid value, the largest kept, its p-value multiplied by the grid size (Bonferroni).
-    Any effect class with a ``grid()`` is profiled the same way.
+    Any effect class with a ``grid()`` is profiled the same way. ``v_s`` is a parameter without
+    a null: the grid value is only where it starts, and the refits fit it with ``Δτ_s``.
 
 The loop (:func:`discover`)
     Fit the base model; then repeat: diagnose the residuals (:mod:`jaxflex.diagnosis`), score-test
@@ -44,9 +45,10 @@ The loop (:func:`discover`)
     candidates), refit the best few (warm start, a 1-D profile of the new parameters, then
     Levenberg–Marquardt of all), confirm each by the likelihood-ratio test ``LR = C₀ − C₁`` at
     ``alpha/m`` and a falling BIC (``C + d·ln N``), and add the one with the largest LR. The
-    score test is local: when the misfit is too large for a first-order picture and no score is
-    significant while the residuals are not noise, each candidate's 1-D profile (the fitted
-    parameters re-optimised to first order) is scanned instead. Ties are real: a delay and a
+    score test is local: when the misfit is too large for a first-order picture and no refitted
+    candidate explained most of it (:data:`MIN_EXPLAINED`) while the residuals are not noise,
+    each other candidate's 1-D profile (the fitted parameters re-optimised to first order) is
+    scanned, and every one the scan finds is refitted. Ties are real: a delay and a
     first-order lag have the same derivative at their null; the refits tell them apart. Stop when
     no candidate is significant and confirmed. An effect is kept only if the final residuals
     are consistent with the noise, or it explained most (:data:`MIN_EXPLAINED`) of the misfit

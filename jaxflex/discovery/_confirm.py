@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
-from collections.abc import Mapping, Sequence
+from collections.abc import Iterable, Mapping, Sequence
 
 import numpy as np
 
@@ -21,24 +21,30 @@ not confirmed: the fit used it only to polish the others."""
 
 
 def profile_scan(engine: Engine, x: np.ndarray, active: Sequence[int],
-                 ranking: Sequence[ScoreResult], level: float):
+                 ranking: Sequence[ScoreResult], level: float, skip: Iterable[str] = ()):
     """Each candidate's profile drop: the cost at the fit minus the lowest cost along its 1-D
-    profile (fitted parameters re-optimised to first order, :meth:`Engine.profile_start`).
+    profile (fitted parameters re-optimised to first order, :meth:`Engine.profile_start`);
+    the candidates in ``skip`` (refitted already) keep their entry as it is.
 
     The score test is local: when the misfit is large (an effect that shifts a resonance by
     a good fraction of its width) the first-order picture at the null can point away from an
-    effect that a finite step explains. The scan runs when no score is significant yet the
-    residuals are not noise; its drop is judged like a likelihood ratio at ``level``.
+    effect that a finite step explains. The scan runs when the residuals are not noise yet no
+    refitted candidate explained most of the misfit; its drop is judged like a likelihood
+    ratio at ``level``.
     """
     u = engine.universe
     names = [c.name for c in u.candidates]
     current = engine.forward_cost(x)
+    skip = set(skip)
     out, starts = [], {}
     for r in ranking:
+        if r.effect in skip:
+            out.append(r)
+            continue
         candidate = names.index(r.effect)
         slot, start, profiled = engine.start(x, active, candidate, r.estimate, with_cost=True)
         drop = max(current - profiled, 0.0)
-        p = lr_test(drop, [u.space[n] for n in u.slots[slot].names])
+        p = lr_test(drop, [u.space[n] for n in u.slots[slot].tested])
         starts[r.effect] = (slot, start)
         out.append(dataclasses.replace(r, profile_drop=drop, profile_p_value=p))
     return out, starts
@@ -60,12 +66,12 @@ def confirm(engine: Engine, x: np.ndarray, cost: float, active: Sequence[int],
         tries = [(i, engine.profile_start(x, active, i, guess)[0]) for i in slots]
     fits = [(engine.fit(x_start, list(active) + [slot]), slot) for slot, x_start in tries]
     (x1, cost1), slot = min(fits, key=lambda item: item[0][1])
-    specs = [u.space[n] for n in u.slots[slot].names]
+    specs = [u.space[n] for n in u.slots[slot].tested]
     lr = cost - cost1
     sub = ParameterSpace(specs)
-    unit = np.asarray(sub.to_unit(sub.from_vector(x1[u.index(u.slots[slot].names)])))
+    unit = np.asarray(sub.to_unit(sub.from_vector(x1[u.index(u.slots[slot].tested)])))
     p = lr_test(lr, specs)
-    delta_bic = len(specs) * math.log(engine.n_samples) - lr
+    delta_bic = len(u.slots[slot].names) * math.log(engine.n_samples) - lr  # every fitted one
     at_null = bool(np.all(unit < BOUND_TOL))
     conf = Confirmation(
         effect=u.candidates[candidate].name,

@@ -283,7 +283,10 @@ class Engine:
         cols = np.flatnonzero(mask)
         x = np.where(mask, x0, u.null)
         x[cols] = np.clip(x[cols], u.space.lower[cols], u.space.upper[cols])
-        scale = np.maximum(np.abs(x[cols]), u.space.lower[cols])  # coordinates of order one
+        # coordinates of order one; a two-sided parameter at zero (an offset) scales by its box
+        lower, upper = u.space.lower[cols], u.space.upper[cols]
+        scale = np.maximum(np.abs(x[cols]), lower)
+        scale = np.where(scale > 0, scale, upper - lower)
         held = np.flatnonzero(~mask)[: min(-(-len(cols) // BLOCK) * BLOCK, len(x)) - len(cols)]
         index = np.concatenate([cols, held])
         scales = np.concatenate([scale, np.ones(len(held))])
@@ -318,8 +321,8 @@ class Engine:
         would pull its start towards the null.
         """
         u = self.universe
-        idx = u.index(u.slots[slot].names)
-        sub = ParameterSpace([u.space[n] for n in u.slots[slot].names])
+        idx = u.index(u.slots[slot].tested)
+        sub = ParameterSpace([u.space[n] for n in u.slots[slot].tested])
         cols = np.flatnonzero(u.active_mask(active))
         pred, jac = self.evaluate(x, np.zeros(len(x), bool), cols)
         _, jf = self._system(pred, jac)
@@ -337,7 +340,7 @@ class Engine:
 
         grid = np.linspace(0.0, 1.0, PROFILE_POINTS)
         costs = [cost_at(t)[0] for t in grid]
-        est = np.array([guess.get(o, np.nan) for o in u.slots[slot].own_names])
+        est = np.array([guess.get(o, np.nan) for o in u.slots[slot].tested_own])
         if np.all(np.isfinite(est)) and np.all(est > sub.lower) and np.all(est < sub.upper):
             t_est = float(np.mean(np.asarray(sub.to_unit(sub.from_vector(est)))))
             grid, costs = np.append(grid, t_est), costs + [cost_at(t_est)[0]]
@@ -410,7 +413,7 @@ class Engine:
         unit = np.asarray(u.space.to_unit(u.space.from_vector(np.where(mask, x, u.space.lower))))
         on_bound = (unit <= 1e-9) | (unit >= 1 - 1e-9)
         nuisance = list(np.flatnonzero(mask & ~on_bound))
-        tested = [int(i) for s in slots for i in u.index(u.slots[s].names)]
+        tested = [int(i) for s in slots for i in u.index(u.slots[s].tested)]
         pred, jac = self.evaluate(x, self._coords(mask), nuisance + tested)
         _, r = self.whitened(pred)
         jn = jac[:, : len(nuisance)]
@@ -423,10 +426,11 @@ class Engine:
         for s in slots:
             slot = u.slots[s]
             cand = u.candidates[slot.candidate]
-            jc = np.stack([columns[int(i)] for i in u.index(slot.names)], axis=1)
+            jc = np.stack([columns[int(i)] for i in u.index(slot.tested)], axis=1)
             jc = jc - q @ (q.T @ jc)
             families.setdefault(slot.candidate, []).append(
-                score_statistic(cand, slot, [u.space[n] for n in slot.names], jc.T @ r, jc.T @ jc)
+                score_statistic(cand, slot, [u.space[n] for n in slot.tested], jc.T @ r,
+                                jc.T @ jc)
             )
         m = max(len(families), 1)
         results = []

@@ -30,6 +30,18 @@ class Slot:
     names: tuple[str, ...]  # its parameter names in the universe
     own_names: tuple[str, ...]  # its own parameter names
 
+    @property
+    def tested(self) -> tuple[str, ...]:
+        """The universe names of the parameters with a null, which score tests and likelihood
+        ratios judge; a shape parameter without one (a Stribeck velocity) is only fitted."""
+        return tuple(n for n, p in zip(self.names, self.effect.parameters, strict=True)
+                     if p.null is not None)
+
+    @property
+    def tested_own(self) -> tuple[str, ...]:
+        """:attr:`tested` under the effect's own names."""
+        return tuple(p.name for p in self.effect.parameters if p.null is not None)
+
 
 @dataclass(frozen=True)
 class Universe:
@@ -38,7 +50,8 @@ class Universe:
     candidates: tuple[Candidate, ...]
     slots: tuple[Slot, ...]
     space: ParameterSpace
-    null: np.ndarray  # null of each candidate parameter (0 for the base ones, unused)
+    null: np.ndarray  # null of each candidate parameter (a shape parameter: its start; the base
+    # ones: unused)
     log: np.ndarray  # log-scale flag per parameter
     fixed: dict[str, float]  # base parameters held at given values (not in ``space``)
     bounds: dict[str, tuple[float, float]]  # the given bounds, in universe names
@@ -74,7 +87,7 @@ class Universe:
                   if owner.get(n, n) in given}
         specs, values = free_specs(model.space, bounds, fixed)
         space = ParameterSpace(specs)
-        null = np.array([0.0 if s.null is None else s.null for s in space.specs])
+        null = np.array([s.reference if s.null is None else s.null for s in space.specs])
         log = np.array([s.log_scale for s in space.specs])
         return cls(model, base, tuple(candidates), tuple(slots), space, null, log,
                    {n: float(v) for n, v in values.items()}, bounds)

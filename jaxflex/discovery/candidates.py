@@ -112,14 +112,13 @@ def as_candidate(item: str | Effect | Candidate) -> Candidate:
         cand = Candidate(item.name, (item,))
     else:
         raise TypeError(f"a candidate must be an effect name or Effect, got {type(item).__name__}")
-    for spec in cand.parameters:
-        if spec.null is None:
-            raise ValueError(
-                f"candidate {cand.name!r}: parameter {spec.name} has no null value (the value "
-                "at which the effect vanishes); a score test needs one"
-            )
     if not cand.parameters:
         raise ValueError(f"candidate {cand.name!r} has no parameters to test")
+    if all(spec.null is None for spec in cand.parameters):
+        raise ValueError(
+            f"candidate {cand.name!r} has no null value on any parameter (the value at which "
+            "the effect vanishes); a score test needs one"
+        )
     return cand
 
 
