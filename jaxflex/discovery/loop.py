@@ -5,7 +5,6 @@ from __future__ import annotations
 
 import dataclasses
 import math
-import os
 import time
 from collections.abc import Iterable, Mapping, Sequence
 from typing import Any
@@ -57,11 +56,6 @@ BUDGET = (60, 40)
 """(generations, population) of the differential evolution that identifies the base model from
 scratch: a reduced budget (the paper: 100 × 100) — seeded around the rigid-body estimate and
 refined by Levenberg–Marquardt, the search only has to find the right basin."""
-
-
-FAST_BUDGET = (15, 20)
-
-"""The budget under ``JAXFLEX_FAST=1`` (tests, notebooks)."""
 
 
 CONFIRM_RATIO = 0.1
@@ -179,10 +173,6 @@ def _channels(records: Dataset, channels: Sequence[str], model: Model) -> tuple[
     return channels
 
 
-def _fast() -> bool:
-    return os.environ.get("JAXFLEX_FAST", "") not in ("", "0")
-
-
 def discover(
     records: Dataset | Iterable[Record],
     holdout: Dataset | Iterable[Record] | None = None,
@@ -209,13 +199,12 @@ def discover(
     fitted parameters (a mapping or a fit); without it the base model is identified from scratch
     by differential evolution and Levenberg–Marquardt
     (:func:`jaxflex.identification.identify`), with ``budget`` generations or
-    ``(generations, population)`` (default :data:`BUDGET`, :data:`FAST_BUDGET` with
-    ``JAXFLEX_FAST=1``). ``alpha`` is the family-wise level of each step, Bonferroni over the
-    candidates. ``noise`` gives channels' noise levels, a white σ in the channel's unit or a
-    :class:`~jaxflex.diagnosis.NoiseLevel` (e.g. ``{"joint_angle": 1e-4}``); the others are
-    estimated from the first fit's residuals (:func:`jaxflex.diagnosis.estimate_noise`), and the
-    report states each level and how it was obtained; where it gives every channel, the base
-    model's search uses them too.
+    ``(generations, population)`` (default :data:`BUDGET`). ``alpha`` is the family-wise level
+    of each step, Bonferroni over the candidates. ``noise`` gives channels' noise levels, a
+    white σ in the channel's unit or a :class:`~jaxflex.diagnosis.NoiseLevel` (e.g.
+    ``{"joint_angle": 1e-4}``); the others are estimated from the first fit's residuals
+    (:func:`jaxflex.diagnosis.estimate_noise`), and the report states each level and how it was
+    obtained; where it gives every channel, the base model's search uses them too.
 
     ``bounds``, ``fixed`` and ``weights`` are :func:`jaxflex.identification.identify`'s, validated
     by the same code: ``bounds`` replace the search box of base parameters and of effect
@@ -246,7 +235,7 @@ def discover(
     if not 0 < alpha < 1:
         raise ValueError(f"alpha={alpha!r} must lie in (0, 1)")
     if budget is None:
-        budget = FAST_BUDGET if _fast() else BUDGET
+        budget = BUDGET
     budget = (int(budget), BUDGET[1]) if isinstance(budget, (int, np.integer)) else budget
     if len(budget) != 2 or min(budget) < 1:
         raise ValueError(f"budget={budget!r} must be generations or (generations, population)")
