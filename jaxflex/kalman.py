@@ -278,18 +278,57 @@ DISTURBANCE_RANGE = (1e-9, 10.0)
 """Range (N m) over which the process-noise torque level is fitted by maximum likelihood."""
 
 
-def fit_disturbance(model: Model, params: Params, records: Sequence[Record],
-                    channels: Sequence[str], sigma_y: Float[Array, " C"]) -> float:
-    """The process-noise torque level ``σ_τ`` (N m) that maximises the innovations'
-    likelihood over ``records`` (bounded search in ``log σ_τ`` over :data:`DISTURBANCE_RANGE`)."""
-    def negative(log_sigma):
-        value = log_likelihood(model, params, records, channels, sigma_y, math.exp(log_sigma))
+def fit_noise(model: Model, params: Params, records: Sequence[Record],
+              channels: Sequence[str], levels: Mapping[str, float],
+              free: Sequence[str] = (), disturbance: float | None = None,
+              ) -> tuple[dict[str, float], float]:
+    """The noise levels that maximise the innovations' likelihood over ``records``: the
+    process-noise torque ``σ_τ`` (N m) unless ``disturbance`` gives it, and the measurement
+    noise of the ``free`` channels, never below their ``levels`` (the sensors' own: what the
+    model misses adds to them); the other channels keep their ``levels``. Returns the levels
+    by channel and ``σ_τ``. A search in the logarithms (bounded for ``σ_τ`` alone, else
+    Nelder–Mead)."""
+    floors = np.array([levels[c] for c in channels])
+    index = [channels.index(c) for c in free]
+
+    def unpack(z):
+        sigma = floors.copy()
+        sigma[index] = np.maximum(np.exp(z[len(z) - len(index):]), floors[index])
+        tau = disturbance if disturbance is not None else math.exp(z[0])
+        return sigma, tau
+
+    def negative(z):
+        sigma, tau = unpack(np.atleast_1d(z))
+        value = log_likelihood(model, params, records, channels, jnp.asarray(sigma), tau)
         return -value if math.isfinite(value) else math.inf
 
     lower, upper = (math.log(v) for v in DISTURBANCE_RANGE)
-    best = scipy.optimize.minimize_scalar(negative, bounds=(lower, upper), method="bounded",
-                                          options={"xatol": 0.02})
-    return math.exp(float(best.x))
+    if not index and disturbance is not None:
+        return dict(levels), disturbance
+    if not index:
+        best = scipy.optimize.minimize_scalar(negative, bounds=(lower, upper), method="bounded",
+                                              options={"xatol": 0.02})
+        z = np.atleast_1d(best.x)
+    else:
+        torque = np.concatenate([np.asarray(r.input) for r in records])
+        start = [math.log(1e-2 * float(np.sqrt(np.mean(torque**2))) + 1e-9)] * (
+            disturbance is None)
+        spread = [float(np.std(np.concatenate([r.channel(c) for r in records if c in r.columns])))
+                  for c in free]
+        start += [math.log(max(1e-2 * s, floors[i])) for s, i in zip(spread, index, strict=True)]
+        best = scipy.optimize.minimize(negative, np.array(start), method="Nelder-Mead",
+                                       options={"xatol": 0.02, "fatol": 0.1,
+                                                "initial_simplex": _simplex(start)})
+        z = np.clip(best.x, lower, upper) if disturbance is None else best.x
+    sigma, tau = unpack(z)
+    return dict(zip(channels, map(float, sigma), strict=True)), float(tau)
+
+
+def _simplex(start: Sequence[float]) -> np.ndarray:
+    """A Nelder–Mead start around ``start``: each coordinate a factor 10 up in turn."""
+    vertices = np.tile(np.asarray(start, dtype=float), (len(start) + 1, 1))
+    vertices[1:] += math.log(10.0) * np.eye(len(start))
+    return vertices
 
 
 def predict(
@@ -301,13 +340,16 @@ def predict(
     channels: Sequence[str] | None = None,
     noise: Noise | None = None,
     disturbance: float | None = None,
+    fit_measurement_noise: bool = True,
 ) -> list[Prediction]:
     """Run the Kalman filter of ``model`` at ``params`` over each record (as the model reads
     it: :func:`jaxflex.measured.model_record`) and predict ``horizons`` seconds ahead.
 
-    ``channels`` default to the fitted ones; the measurement noise follows
-    :func:`measurement_noise` (``noise`` overrides it); ``disturbance`` is the process-noise
-    torque ``σ_τ`` (N m), fitted by maximum likelihood over the records when not given.
+    ``channels`` default to the fitted ones. The process noise ``disturbance`` (``σ_τ``, N m)
+    and, with ``fit_measurement_noise``, the measurement noise of every channel ``noise`` does
+    not give are fitted by maximum likelihood over the records (:func:`fit_noise`, never below
+    :func:`measurement_noise`, the sensors' own: on a real rig what the model misses adds to
+    them); without it the channels keep :func:`measurement_noise`.
     """
     records = list(record_tuple(records))
     channels = fitted_channels(records, model) if channels is None else check_channels(
@@ -319,9 +361,9 @@ def predict(
     if disturbance is not None and not (math.isfinite(disturbance) and disturbance > 0):
         raise ValueError(f"disturbance must be a positive torque (N m), got {disturbance!r}")
     levels = measurement_noise(model, records, channels, noise)
+    free = [c for c in channels if c not in dict(noise or {})] if fit_measurement_noise else []
+    levels, disturbance = fit_noise(model, values, records, channels, levels, free, disturbance)
     sigma_y = jnp.asarray([levels[c] for c in channels])
-    if disturbance is None:
-        disturbance = fit_disturbance(model, values, records, channels, sigma_y)
     results = []
     for record, ks in zip(records, steps, strict=True):
         torque, measured, present = _arrays(record, channels)
@@ -341,5 +383,5 @@ def predict(
     return results
 
 
-__all__ = ["Filtered", "Prediction", "check_per_sample", "filter_core", "fit_disturbance",
+__all__ = ["Filtered", "Prediction", "check_per_sample", "filter_core", "fit_noise",
            "horizon_steps", "log_likelihood", "measurement_noise", "predict", "predict_core"]
