@@ -36,7 +36,8 @@ from jaxflex.diagnosis import Noise, noise_levels
 from jaxflex.evolve import STRATEGIES, get_strategy, run
 from jaxflex.intervals import uncertainty
 from jaxflex.model import Model
-from jaxflex.objective import Objective, Records, build_objective, check_records
+from jaxflex.objective import Objective, Records, build_objective, check_records, record_tuple
+from jaxflex.prediction_error import check_criterion, noise_settings, prediction_objective
 from jaxflex.refine import Refinement
 from jaxflex.refine import refine as refine_parameters
 from jaxflex.testbed import Testbed
@@ -604,6 +605,8 @@ def identify(
     level: float = 0.95,
     noise: Noise | None = None,
     tol: float | None = None,
+    criterion: str = "output",
+    disturbance: float | None = None,
 ) -> Fit:
     """Identify the parameters of ``model`` (default: the reference testbed) from ``records``.
 
@@ -621,14 +624,23 @@ def identify(
     Levenberg–Marquardt from the ``refine_starts`` best candidates; ``intervals`` computes the
     Gauss–Newton uncertainty at ``level``. ``progress`` reports the stages (search, refinement,
     intervals) on stderr: a bar on a terminal or in Jupyter, else a line per stage.
+    ``criterion="prediction"`` fits the Kalman filter's one-step predictions instead of the
+    free simulation (:mod:`jaxflex.prediction_error`: closed-loop records, a free rigid-body
+    mode); ``disturbance`` (N m) and ``noise`` give the filter's noise levels, fitted by maximum
+    likelihood at the reference parameters where not given.
     """
     t_start = time.perf_counter()
     check_records(records, "identify")
     method = check_method(method)
+    criterion = check_criterion(criterion)
     objective = build_objective(
         records, model, weights=weights, channels=channels, fixed=fixed, bounds=bounds,
         noise=noise,
     )
+    if criterion == "prediction":
+        objective = prediction_objective(
+            objective, record_tuple(records), objective.full(objective.space.reference()),
+            noise=noise, disturbance=disturbance)
     overrides = dict(strategy_options or {})
     if population is not None:
         overrides["population"] = population
@@ -725,7 +737,8 @@ def identify(
             "log_scale": {s.name: s.log_scale for s in objective.specs},
             "seeded": 0 if seeds is None else int(seeds.shape[0]),
             "dt": objective.dt,
-        },
+        } | ({"criterion": criterion} | noise_settings(objective)
+             if criterion != "output" else {}),
         timing=timing,
         record_names=objective.record_names,
         level=level,

@@ -72,6 +72,13 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--refine-starts", type=positive_int, default=1, metavar="K",
                    help="refine from the K best candidates (default: %(default)s)")
     p.add_argument("--out", required=True, metavar="FIT.json", help="where to write the fit")
+    p.add_argument("--criterion", choices=("output", "prediction"), default="output",
+                   help="fit the free simulation (output error, the default) or the Kalman "
+                        "filter's one-step predictions (prediction error: closed-loop records, "
+                        "a free rigid-body mode)")
+    p.add_argument("--disturbance", type=positive_float, metavar="NM",
+                   help="with --criterion prediction: the filter's process-noise torque (N m "
+                        "per sample; default: fitted by maximum likelihood)")
     p.add_argument("--plot", metavar="FIG.png",
                    help="also write figures: convergence and parameter intervals in FIG.png, "
                         "and each record against the fit, every channel in its unit, with the "
@@ -87,6 +94,9 @@ def run(args: argparse.Namespace) -> int:
     from jaxflex.distributed import is_main
     from jaxflex.identification import identify
 
+    if args.disturbance is not None and args.criterion != "prediction":
+        raise UsageError("--disturbance sets the Kalman filter's noise: give --criterion "
+                         "prediction with it")
     if (status := enter(args)) is not None:
         return status
     rig, source = rig_of(args)
@@ -99,7 +109,9 @@ def run(args: argparse.Namespace) -> int:
     )
     windows = windows_of(args, model, records)
     ready = ready_records(model, records, windows)
-    fit = search(args, ready, model, fit_keywords(args, identify))
+    criterion = {} if args.criterion == "output" else {"criterion": args.criterion,
+                                                        "disturbance": args.disturbance}
+    fit = search(args, ready, model, fit_keywords(args, identify) | criterion)
     if not is_main():
         return 0
     rig = rig_settings(model, source, records, windows)

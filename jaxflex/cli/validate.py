@@ -91,6 +91,15 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         metavar="S",
         help="accelerometer noise standard deviation (m/s^2), for the noise floor",
     )
+    p.add_argument(
+        "--horizon",
+        type=positive_float,
+        action="append",
+        metavar="S",
+        help="also predict S seconds ahead with the model's Kalman filter, beside the "
+        "simulation (repeatable; the filter's noise levels: the fit's, else fitted by maximum "
+        "likelihood on each record)",
+    )
     add_arm_arguments(p)
     add_quiet_option(p)
     p.add_argument("--json", metavar="TABLE.json",
@@ -129,12 +138,16 @@ def run(args: argparse.Namespace) -> int:
 
         directory = check_directory("--report", args.report)
         targets += [("--report", p, None) for p in report_paths(names, directory, args.format)]
+        if args.horizon:
+            targets += [("--report", p, None)
+                        for p in prediction_paths(names, directory, args.format)]
     json_target, *_ = check_outputs(
         targets, overwrite=args.overwrite, inputs=[*sources(records), args.fit]
     ) or [None]
     json_target = json_target if args.json is not None else None
     windows = windows_of(args, model, records)
     ready = ready_records(model, records, windows)
+    horizons = check_horizons(args.horizon or [], ready)
     t_end = args.t_end if args.t_end is not None or model.sensors else DEFAULT_T_END
     frf = FRFSettings(
         f_max=args.f_max, **({"min_input_db": None, "min_coherence": None} if args.raw_frf else {})
@@ -144,7 +157,7 @@ def run(args: argparse.Namespace) -> int:
         model,
         params,
         ready,
-        fit_names=[n for n in fit.record_names if n in names],
+        fit_names=comparison_fit_names(fit, names),
         t_end=t_end,
         frf=frf,
         encoder_counts=args.encoder_counts,
@@ -153,20 +166,85 @@ def run(args: argparse.Namespace) -> int:
     seconds = time.perf_counter() - started
     stage(f"compared {len(records)} record(s) with the model ({seconds:.1f} s)", not args.quiet)
     print(comparison.table(), end="")
+    predictions = []
+    if horizons:
+        from jaxflex.prediction_report import compare_predictions, prediction_table
+
+        predictions = compare_predictions(
+            model, params, ready, horizons, fit_names=comparison_fit_names(fit, names),
+            channels=comparison.channels, **filter_noise(fit))
+        print(prediction_table(predictions), end="")
     with all_or_nothing():
         if json_target is not None:
             rows = [{"name": r.name, "role": r.role, "nrmse": dict(r.nrmse)}
                     for r in comparison.rows]
             write_json(json_target, {"rig": model.name, "t_end": t_end, "windows": {
                 r.name: w for r, w in zip(records, windows, strict=True)},
-                                     "records": rows}, overwrite=args.overwrite)
+                                     "records": rows} | ({"prediction": [
+                                         p.to_dict() for p in predictions]} if horizons else {}),
+                       overwrite=args.overwrite)
         if args.report:
             from jaxflex.plots.compare import save_report
 
             paths = save_report(comparison, args.report, overwrite=args.overwrite,
                                 fmt=args.format)
+            if predictions:
+                paths += save_predictions(predictions, comparison.units, args.report,
+                                          overwrite=args.overwrite, fmt=args.format)
     if json_target is not None:
         print(f"wrote {json_target}")
     if args.report:
         print(f"wrote {len(paths)} files to {args.report}: {', '.join(p.name for p in paths)}")
     return 0
+
+
+def comparison_fit_names(fit, names) -> list[str]:
+    """The records given that the fit was made on."""
+    return [n for n in fit.record_names if n in names]
+
+
+def check_horizons(horizons, records) -> list[float]:
+    """``--horizon`` values, each at least one sample and shorter than every record (one line
+    naming it)."""
+    if not horizons:
+        return []
+    from jaxflex.kalman import horizon_steps
+
+    for record in records:
+        try:
+            horizon_steps(horizons, record.dt, [record])
+        except ValueError as exc:
+            raise UsageError(f"--{exc}") from None
+    return list(horizons)
+
+
+def filter_noise(fit) -> dict[str, object]:
+    """The Kalman filter's noise levels a prediction-error fit carries; none otherwise."""
+    settings = fit.settings
+    if "disturbance" not in settings:
+        return {}
+    return {"disturbance": settings["disturbance"], "noise": settings["measurement_noise"]}
+
+
+def prediction_paths(names, directory, fmt: str):
+    """``prediction.json`` and one ``<record>_prediction.<fmt>`` figure per record."""
+    from pathlib import Path
+
+    from jaxflex._io import safe_stem
+
+    directory = Path(directory)
+    return [directory / "prediction.json"] + [
+        directory / f"{safe_stem(n)}_prediction.{fmt}" for n in names]
+
+
+def save_predictions(rows, units, directory, *, overwrite: bool, fmt: str) -> tuple:
+    """Write ``prediction.json`` and the prediction figures; returns the paths."""
+    from jaxflex._io import write_json
+    from jaxflex.plots._style import save_figure
+    from jaxflex.plots.prediction import plot_prediction
+
+    paths = prediction_paths([r.name for r in rows], directory, fmt)
+    write_json(paths[0], {"records": [r.to_dict() for r in rows]}, overwrite=overwrite)
+    for row, path in zip(rows, paths[1:], strict=True):
+        save_figure(plot_prediction(row, units=units), path, overwrite=overwrite)
+    return tuple(paths)
