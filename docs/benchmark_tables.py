@@ -203,25 +203,55 @@ def cli_startup_table() -> str:
     return _table(["command", checkout, baseline], rows)
 
 
+def _pair(scores: dict) -> str:
+    """θ / α NRMSE of one ROTFLEX prediction or simulation."""
+    return " / ".join(f"{scores[c]:.0f} %" if scores[c] >= 100 else f"{scores[c]:.1f} %"
+                      for c in ("joint_angle", "deflection_angle"))
+
+
 def real_rig_table() -> str:
     """ROTFLEX: physical fits and the best black box, on the fit run and held out
     (``real_rig.json``)."""
     data = result("real_rig")
 
-    def pair(scores: dict) -> str:
-        return " / ".join(f"{scores[c]:.0f} %" if scores[c] >= 100 else f"{scores[c]:.1f} %"
-                          for c in ("joint_angle", "deflection_angle"))
-
     rows = []
     for key in ("physical", "physical_offset"):
         fit = data[key]
         label = f"jaxflex, arm `{data['arm']}`" + "".join(f" + `{e}`" for e in fit["effects"])
-        rows.append([label, f"{fit['n_parameters']} physical", pair(fit["nrmse_fit"]),
-                     pair(fit["nrmse_held_out"])])
+        rows.append([label, f"{fit['n_parameters']} physical", _pair(fit["nrmse_fit"]),
+                     _pair(fit["nrmse_held_out"])])
     box = data["black_box"]["best"]
     rows.append([f"N4SID state space, order {box['order']} (best held out)",
-                 str(box["n_parameters"]), pair(box["nrmse_fit"]), pair(box["nrmse_held_out"])])
+                 str(box["n_parameters"]), _pair(box["nrmse_fit"]), _pair(box["nrmse_held_out"])])
     return _table(["model", "parameters", "fit run: θ / α NRMSE", "held out: θ / α NRMSE"], rows)
+
+
+def real_rig_prediction_table() -> str:
+    """ROTFLEX run 985 held out: k-step-ahead predictions of the square-wave fit's Kalman filter
+    beside the best N4SID model's own Kalman predictor (``real_rig.json``)."""
+    data = result("real_rig")
+    ours, box = data["prediction"]["nrmse_held_out"], data["black_box"]["best"]
+    theirs = box["nrmse_prediction_held_out"] | {"simulation": box["nrmse_held_out"]}
+    columns = [c for c in ours if c != "simulation"] + ["simulation"]
+    rows = [["jaxflex, square-wave fit + `torque_offset`, its Kalman filter",
+             *(_pair(ours[c]) for c in columns)],
+            [f"N4SID order {box['order']}, its Kalman predictor",
+             *(_pair(theirs[c]) for c in columns)]]
+    rate = data["prediction"]["held_out_rate_hz"]
+    return _table([f"θ / α NRMSE, run 985 at {rate:.0f} Hz",
+                   *(c.replace("_", " ") for c in columns)], rows)
+
+
+def real_rig_criteria_table() -> str:
+    """ROTFLEX run 985: output-error and prediction-error fits on its first half, scored on its
+    second half (``real_rig.json``)."""
+    data = result("real_rig")["criteria"]
+    columns = list(data["output"]["nrmse_second_half"])
+    columns = [c for c in columns if c != "simulation"] + ["simulation"]
+    rows = [[f"{name.replace('_', ' ')} error", *(_pair(data[key]["nrmse_second_half"][c])
+                                                  for c in columns)]
+            for key, name in (("output", "output"), ("prediction", "prediction"))]
+    return _table(["fitted by (first half)", *(c.replace("_", " ") for c in columns)], rows)
 
 
 def machines_table() -> str:
@@ -249,6 +279,8 @@ TABLES: dict[str, Callable[[], str]] = {
     "discover": discover_table,
     "cli_startup": cli_startup_table,
     "real_rig": real_rig_table,
+    "real_rig_prediction": real_rig_prediction_table,
+    "real_rig_criteria": real_rig_criteria_table,
     "machines": machines_table,
 }
 """Each table by the name its marker gives."""
