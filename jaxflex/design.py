@@ -52,7 +52,14 @@ from jaxflex.data import Record
 from jaxflex.model import Model
 from jaxflex.parameters import Params
 from jaxflex.signals import REFERENCE_AMPLITUDES, reference_input, time_grid
-from jaxflex.simulation import OUTPUT_NAMES, Outputs, check_torque, simulate, simulate_core
+from jaxflex.simulation import (
+    OUTPUT_NAMES,
+    Outputs,
+    check_torque,
+    read_channels,
+    simulate,
+    simulate_core,
+)
 from jaxflex.synthetic import ACCELEROMETER_SIGMA, ENCODER_STEP
 
 DEFAULT_NOISE: dict[str, float] = {
@@ -116,8 +123,8 @@ def _fisher(model, params, names, torque, dt, channels, sigmas) -> tuple[Array, 
     def whitened_outputs(log_values):
         values = dict(params) | {n: jnp.exp(log_values[i]) for i, n in enumerate(names)}
         out = simulate_core(model, values, torque, dt)
-        y = jnp.concatenate([out.channel(c) / sigmas[i] for i, c in enumerate(channels)])
-        return y, out
+        y = read_channels(model, values, out, channels) / sigmas[:, None]
+        return y.reshape(-1), out
 
     log_values = jnp.log(jnp.stack([params[n] for n in names]))
     jac, out = jax.jacfwd(whitened_outputs, has_aux=True)(log_values)

@@ -42,7 +42,7 @@ from jaxflex.diagnosis import Noise, estimate_noise, noise_levels
 from jaxflex.model import Model
 from jaxflex.objective import check_channels, fitted_channels, record_tuple
 from jaxflex.parameters import Params
-from jaxflex.simulation import Outputs, _with_readings, model_dynamics
+from jaxflex.simulation import Outputs, _with_readings, model_dynamics, read_channels
 
 
 class Filtered(NamedTuple):
@@ -91,8 +91,7 @@ def _step_and_output(model: Model, params: Params, dt: float, channels: Sequence
 
     def output(x, tau):
         out = _with_readings(model, Outputs(*dynamics.observe(dynamics.from_vector(x), tau)))
-        read = model.readings(params, {c: out.channel(c) for c in channels})
-        return jnp.stack([read[c] for c in channels])
+        return read_channels(model, params, out, channels)
 
     x0 = dynamics.to_vector(dynamics.start(None))
     return step, output, x0, dynamics.fine_torque

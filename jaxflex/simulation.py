@@ -34,7 +34,7 @@ so reverse mode does not store the iterations.
 from __future__ import annotations
 
 import math
-from collections.abc import Callable, Mapping
+from collections.abc import Callable, Mapping, Sequence
 from typing import NamedTuple
 
 import equinox as eqx
@@ -47,6 +47,7 @@ from jaxflex.modal import Modes, free_hub_modes
 from jaxflex.model import Model
 from jaxflex.parallel import population_vmap
 from jaxflex.parameters import Params
+from jaxflex.sensors import calibrated
 
 MAX_FRICTION_ITERATIONS = 100
 """Upper bound on the friction solve's evaluations of the law (it stops at round-off, usually
@@ -653,6 +654,16 @@ def model_dynamics(model: Model, params: Params, dt: float) -> Dynamics:
                     from_vector)
 
 
+def read_channels(
+    model: Model, params: Params, outputs: Outputs, channels: Sequence[str]
+) -> Float[Array, " C *n"]:
+    """The named channels (outputs or sensor channels) as the rig logs them, the model's
+    effects on the readings applied, stacked in ``channels`` order; pure and traceable: what
+    the objective, the Kalman filter and the experiment design all compare with data."""
+    read = model.readings(params, {c: outputs.channel(c) for c in channels})
+    return jnp.stack([read[c] for c in channels])
+
+
 def _with_readings(model: Model, outputs: Outputs) -> Outputs:
     """``outputs`` with each of the model's sensors' readings (none without sensors)."""
     if not model.sensors:
@@ -765,3 +776,15 @@ def simulate_batch(
     values, torque, dt = _check_inputs(model, params, torque, dt, batched=True)
     outputs = _simulate_batch_jit(model, values, _padded(torque), dt)
     return _first(outputs, torque.shape[0], axis=1)
+
+
+def simulate_readings(
+    model: Model,
+    params: Mapping[str, ArrayLike],
+    torque: Float[ArrayLike, " n"],
+    dt: float | None = None,
+) -> Outputs:
+    """:func:`simulate`, then the model's effects on the readings (a sensor's gain or offset,
+    :func:`jaxflex.sensors.calibrated`): what the rig's sensors would log, relative to rest.
+    The one way every comparison with measurements predicts them."""
+    return calibrated(model, dict(params), simulate(model, params, torque, dt))

@@ -22,9 +22,8 @@ from jaxtyping import ArrayLike
 from jaxflex.data import Dataset, Record
 from jaxflex.model import Model
 from jaxflex.parameters import Params
-from jaxflex.sensors import calibrated
 from jaxflex.signals import reference_input
-from jaxflex.simulation import OUTPUT_NAMES, simulate
+from jaxflex.simulation import OUTPUT_NAMES, simulate_readings
 
 ENCODER_COUNTS = 4096
 """Encoder counts per revolution."""
@@ -146,7 +145,7 @@ def simulated_record(
     """A noise-free :class:`Record` of ``model`` at ``params`` driven by ``torque``; ``extras``
     names further simulated outputs stored as extra columns; the model's effects on the
     readings (a sensor gain or offset) act on every column."""
-    out = calibrated(model, params, simulate(model, params, torque, dt))
+    out = simulate_readings(model, params, torque, dt)
     return Record(
         time=time,
         torque=torque,

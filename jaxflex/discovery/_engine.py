@@ -29,8 +29,7 @@ from jaxflex.model import Model
 from jaxflex.objective import build_objective
 from jaxflex.parameters import ParameterSpace
 from jaxflex.refine import bounded_least_squares_of
-from jaxflex.sensors import calibrated
-from jaxflex.simulation import Outputs, simulate
+from jaxflex.simulation import Outputs, simulate_readings
 
 INNER_WEIGHT = 1e-2
 
@@ -444,8 +443,5 @@ class Engine:
 
 def simulate_all(universe: Universe, x: np.ndarray, records: Dataset) -> tuple[Outputs, ...]:
     params = {**universe.fixed, **dict(zip(universe.space.names, map(float, x), strict=True))}
-    return tuple(
-        calibrated(universe.model, params, simulate(universe.model, params, r.input, dt=r.dt))
-        for r in records
-    )
+    return tuple(simulate_readings(universe.model, params, r.input, dt=r.dt) for r in records)
 
