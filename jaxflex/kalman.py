@@ -38,8 +38,9 @@ import scipy.optimize
 from jaxtyping import Array, ArrayLike, Float, Scalar
 
 from jaxflex.data import Record
-from jaxflex.diagnosis import Noise, estimate_noise, noise_levels
+from jaxflex.diagnosis import estimate_noise
 from jaxflex.model import Model
+from jaxflex.noise import Noise, noise_levels
 from jaxflex.objective import check_channels, fitted_channels, record_tuple
 from jaxflex.parameters import Params
 from jaxflex.simulation import Outputs, _with_readings, model_dynamics, read_channels

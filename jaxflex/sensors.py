@@ -27,7 +27,7 @@ from __future__ import annotations
 
 import abc
 import math
-from collections.abc import Mapping, Sequence
+from collections.abc import Sequence
 from typing import TYPE_CHECKING, ClassVar
 
 import equinox as eqx
@@ -315,8 +315,3 @@ def readings(
     changed = outputs if params is None else calibrated(model, params, outputs)
     own = changed.readings or {}
     return {c: own[c] for c in model.channels if channels is None or c in channels}
-
-
-def noise_levels(sensors: Sequence[AbstractSensor]) -> Mapping[str, float]:
-    """Each channel's measurement-noise standard deviation (white noise and quantisation)."""
-    return {s.channel: s.noise_std for s in sensors}

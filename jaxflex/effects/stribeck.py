@@ -24,6 +24,7 @@ EXCESS = ParameterSpec(
     description="static minus Coulomb friction torque (tau_s - tau_c)",
     null=0.0,
 )
+"""The Stribeck excess: zero is the plain Coulomb law, so score tests and refits judge it."""
 
 
 def velocity_spec(v_s: float) -> ParameterSpec:
