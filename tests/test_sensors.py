@@ -15,7 +15,6 @@ from jaxflex.sensors import (
     Encoder,
     StrainGauge,
     Tachometer,
-    noise_levels,
     readings,
 )
 from jaxflex.signals import reference_input
@@ -117,7 +116,7 @@ def test_calibration_gain_offset_and_noise_model(pulse_run):
     np.testing.assert_allclose(counts, np.round(counts), rtol=0, atol=1e-9)
     error = logged - np.asarray(today.joint_angle)
     assert np.max(np.abs(error)) <= encoder.resolution / 2 * (1 + 1e-12)
-    assert noise_levels([encoder])["joint_angle"] == pytest.approx(encoder.resolution / 12**0.5)
+    assert encoder.noise_std == pytest.approx(encoder.resolution / 12**0.5)
     noisy = Tachometer(noise=0.01).observe(np.zeros(20000), np.random.default_rng(1))
     assert np.std(noisy) == pytest.approx(0.01, rel=0.03)
     assert Encoder(resolution=0.0).observe(np.array([0.1]), np.random.default_rng(0))[0] == 0.1
