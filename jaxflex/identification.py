@@ -29,11 +29,12 @@ from typing import Any
 import numpy as np
 from jaxtyping import ArrayLike
 
+from jaxflex._arguments import shown
 from jaxflex._io import provenance, to_jsonable, write_json
 from jaxflex._progress import stage
 from jaxflex.arm import MAX_ELEMENTS
 from jaxflex.diagnosis import Noise, noise_levels
-from jaxflex.evolve import STRATEGIES, get_strategy, run
+from jaxflex.evolve import STRATEGIES, AbstractStrategy, get_strategy, run
 from jaxflex.intervals import uncertainty
 from jaxflex.model import Model
 from jaxflex.objective import Objective, Records, build_objective, check_records, record_tuple
@@ -407,6 +408,13 @@ def _one_of(*allowed: Any):
     return check
 
 
+def _registered_strategy(v: Any, at: str) -> None:
+    """A fit's method: the name of a registered strategy (a user's own once registered)."""
+    if v not in STRATEGIES:
+        raise _Invalid(f"field {at!r}: expected one of {sorted(STRATEGIES)}, got {_show(v)} "
+                       "(register a strategy of one's own with jaxflex.evolve.STRATEGIES)")
+
+
 def _nullable(check_value):
     def check(v: Any, at: str) -> None:
         if v is not None:
@@ -463,7 +471,7 @@ FIT_SCHEMA = _record({
         "steps": _typed(int, "a whole number"), "n_starts": _typed(int, "a whole number"),
         "wall_time": _number_field(), "compile_time": _number_field(),
     }, optional=_REFINEMENT_TIMES)),
-    "method": _one_of(*METHODS),
+    "method": _registered_strategy,
     "seed": _typed(int, "a whole number"),
     "settings": _typed(dict, "an object"),
     "timing": _object_of(_number_field()),
@@ -549,6 +557,28 @@ def check_method(method: str) -> str:
     return name
 
 
+def _strategy(search: AbstractStrategy | None, method: str, generations: int,
+              population: int | None, options: Mapping[str, Any] | None) -> AbstractStrategy:
+    """The search of :func:`identify`: ``search`` itself, or the strategy ``method`` names with
+    the paper's settings, ``generations``, ``population`` and ``options``."""
+    if search is None:
+        overrides = dict(options or {}) | {"generations": generations}
+        if population is not None:
+            overrides["population"] = population
+        return get_strategy(method, "paper", **overrides)
+    if not isinstance(search, AbstractStrategy):
+        raise TypeError(f"identify: search must be a strategy (e.g. jaxflex.evolve.DE()), got "
+                        f"{shown(search)}")
+    given = [name for name, value, default in (
+        ("method", method, "de"), ("generations", generations, 100),
+        ("population", population, None), ("strategy_options", options, None))
+        if value != default]
+    if given:
+        raise ValueError(f"identify: search= holds the whole search; drop {', '.join(given)} "
+                         f"(set them on the strategy, e.g. DE(population=40, generations=60))")
+    return search
+
+
 def _unit_seeds(objective: Objective, init_population: Any) -> np.ndarray | None:
     """Physical starting points (a mapping name → value(s), a list of them, or a Fit) → unit box."""
     if init_population is None:
@@ -607,11 +637,15 @@ def identify(
     tol: float | None = None,
     criterion: str = "output",
     disturbance: float | None = None,
+    search: AbstractStrategy | None = None,
 ) -> Fit:
     """Identify the parameters of ``model`` (default: the reference testbed) from ``records``.
 
-    ``method`` is ``"de"``, ``"ga"`` or ``"pso"`` with the paper's settings; ``population``
-    overrides the preset's (100), ``strategy_options`` any other setting (e.g. ``{"F": 0.7}``).
+    ``search`` is the evolutionary strategy, with its settings and length
+    (``search=DE(population=40, generations=60)``: :mod:`jaxflex.evolve`, or a strategy of one's
+    own); ``method`` is the shorthand for a registered one with the paper's settings
+    (``"de"``, ``"ga"``, ``"pso"``), ``population`` overriding the preset's (100) and
+    ``strategy_options`` any other setting (e.g. ``{"F": 0.7}``).
     The search runs ``generations`` generations from ``seed`` (same seed → same result) in the
     unit box of the free parameters, fewer if ``tol`` is given and the population's costs agree
     to it first (:func:`jaxflex.evolve.run`); ``bounds`` narrows or widens a parameter's range
@@ -641,10 +675,8 @@ def identify(
         objective = prediction_objective(
             objective, record_tuple(records), objective.full(objective.space.reference()),
             noise=noise, disturbance=disturbance)
-    overrides = dict(strategy_options or {})
-    if population is not None:
-        overrides["population"] = population
-    strategy = get_strategy(method, "paper", **overrides)
+    strategy = _strategy(search, method, generations, population, strategy_options)
+    method, generations = strategy.name.lower(), strategy.generations
     if not (isinstance(refine_starts, int) and 1 <= refine_starts <= strategy.population):
         raise ValueError(
             f"refine_starts must be an int in [1, population={strategy.population}], "
@@ -657,7 +689,6 @@ def identify(
         objective.fitness,
         objective.dim,
         seed=seed,
-        generations=generations,
         init_population=seeds,
         progress=progress,
         tol=tol,

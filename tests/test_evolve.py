@@ -315,6 +315,7 @@ class _RandomSearch(AbstractStrategy):
     """A strategy written outside the library: fresh uniform candidates, keep the better."""
 
     population: int = eqx.field(static=True, default=16)
+    generations: int = eqx.field(static=True, default=30)
 
     def ask(self, state, key):
         return jax.random.uniform(key, state.population.shape), state
@@ -332,7 +333,8 @@ def test_a_strategy_of_ones_own_runs_through_ask_and_tell():
     def sphere(x):
         return jnp.sum((x - 0.25) ** 2, axis=1)
 
-    result = run(_RandomSearch(), sphere, 2, seed=0, generations=30)
+    result = run(_RandomSearch(), sphere, 2, seed=0)  # its own 30 generations
+    assert result.generations == 30
     assert result.best_fitness < 0.01
     assert np.all(np.diff(np.asarray(result.history_best)) <= 0)
     strategy, key = _RandomSearch(), jax.random.key(1)
@@ -346,6 +348,7 @@ def test_a_strategy_of_ones_own_runs_through_ask_and_tell():
 def test_a_strategy_without_ask_and_tell_cannot_be_made():
     class Incomplete(AbstractStrategy):
         population: int = 4
+        generations: int = 10
 
     with pytest.raises(TypeError, match="abstract"):
         Incomplete()

@@ -421,3 +421,20 @@ def test_study_table_and_cli(clean, tmp_path, capsys):
     assert data["format"] == "jaxflex-study/2" and len(data["runs"]) == 2
     assert data["runs"][0]["params"] == pytest.approx(study.runs[0].params)  # same seed, same run
     assert (tmp_path / "curves.png").stat().st_size > 1000
+
+
+def test_a_search_object_is_the_method_shorthand_spelled_out(clean):
+    """``search=DE(population=12, generations=3)`` is ``method="de", population=12,
+    generations=3`` bit for bit; mixing the two ways is refused in one line."""
+    from jaxflex.evolve import DE
+
+    shorthand = identify(clean[:1], method="de", population=12, generations=3, seed=2,
+                         refine=False, intervals=False)
+    spelled = identify(clean[:1], search=DE.paper(population=12, generations=3), seed=2,
+                       refine=False, intervals=False)
+    assert spelled.params == shorthand.params
+    assert spelled.method == "de" and spelled.settings["generations"] == 3
+    with pytest.raises(ValueError, match="search= holds the whole search; drop population"):
+        identify(clean[:1], search=DE(), population=12)
+    with pytest.raises(TypeError, match="search must be a strategy .* got 'de' \\(str\\)"):
+        identify(clean[:1], search="de")

@@ -195,12 +195,14 @@ class AbstractStrategy(eqx.Module):
     call) and :meth:`tell` (select with their fitness). :meth:`init` and :meth:`step` do the
     same with a fitness function, for a loop inside one program (``lax.scan``).
 
-    Subclasses define ``population`` (a static int field), validate their fields in
+    Subclasses define ``population`` and ``generations`` (static int fields: the candidates per
+    generation, and how many generations a run takes unless told), validate their fields in
     ``__check_init__`` and implement :meth:`ask` and :meth:`tell`.
     """
 
     name: ClassVar[str] = "strategy"
     population: eqx.AbstractVar[int]
+    generations: eqx.AbstractVar[int]
 
     def initialize(
         self, key: PRNGKeyArray, dim: int, init_population: Float[ArrayLike, "k d"] | None = None
@@ -385,13 +387,14 @@ def run(
     *,
     key: PRNGKeyArray | None = None,
     seed: int | None = None,
-    generations: int = 100,
+    generations: int | None = None,
     init_population: Float[ArrayLike, "k d"] | None = None,
     progress: bool = False,
     callback: Callable[[int, State], None] | None = None,
     tol: float | None = None,
 ) -> EvolutionResult:
-    """Minimise ``fitness_fn`` over ``[0, 1]^dim`` for ``generations`` generations.
+    """Minimise ``fitness_fn`` over ``[0, 1]^dim`` for ``generations`` generations (default:
+    the strategy's own).
 
     Pass exactly one of ``key`` (a JAX PRNG key) and ``seed`` (an int); the same key gives a
     bitwise identical result. ``init_population`` (``k ≤ P`` rows in the unit box, or one point
@@ -405,6 +408,7 @@ def run(
     generation then waits for its costs before the next.
     """
     owner = "run"
+    generations = strategy.generations if generations is None else generations
     check_integer(owner, "dim", dim, 1)
     check_integer(owner, "generations", generations, 1)
     if tol is not None and not (isinstance(tol, (int, float)) and 0 < tol < float("inf")):

@@ -45,6 +45,7 @@ class DE(AbstractStrategy):
 
     name: ClassVar[str] = "DE"
     population: int = eqx.field(static=True, default=100)
+    generations: int = eqx.field(static=True, default=100)
     F: float = 0.5
     CR: float = 0.8
     variant: str = eqx.field(static=True, default="rand1bin")

@@ -48,6 +48,7 @@ class GA(AbstractStrategy):
 
     name: ClassVar[str] = "GA"
     population: int = eqx.field(static=True, default=100)
+    generations: int = eqx.field(static=True, default=100)
     selection_rate: float = 0.5
     crossover: float = 0.8
     mutation: float = 0.2

@@ -52,6 +52,7 @@ class PSO(AbstractStrategy):
 
     name: ClassVar[str] = "PSO"
     population: int = eqx.field(static=True, default=100)
+    generations: int = eqx.field(static=True, default=100)
     w: float = 0.7298
     c1: float = 1.49618
     c2: float = 1.49618
