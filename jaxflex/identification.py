@@ -17,6 +17,7 @@ uncertainty of the result is estimated by :func:`jaxflex.intervals.uncertainty`.
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import math
 import os
@@ -39,8 +40,7 @@ from jaxflex.intervals import uncertainty
 from jaxflex.model import Model
 from jaxflex.objective import Objective, Records, build_objective, check_records, record_tuple
 from jaxflex.prediction_error import check_criterion, noise_settings, prediction_objective
-from jaxflex.refine import Refinement
-from jaxflex.refine import refine as refine_parameters
+from jaxflex.refine import AbstractRefinement, LevenbergMarquardt, Refinement
 from jaxflex.testbed import Testbed
 
 FIT_FORMAT = "jaxflex-fit/2"
@@ -579,6 +579,34 @@ def _strategy(search: AbstractStrategy | None, method: str, generations: int,
     return search
 
 
+def _refinement(refine: bool | AbstractRefinement, starts: int,
+                population: int) -> AbstractRefinement | None:
+    """The refinement of :func:`identify`: ``refine`` itself, Levenberg–Marquardt from
+    ``starts`` candidates for ``True``, None for ``False``."""
+    if isinstance(refine, AbstractRefinement):
+        if starts != 1:
+            raise ValueError("identify: refine= holds the whole refinement; drop refine_starts "
+                             "(e.g. LevenbergMarquardt(starts=3))")
+        starts = refine.starts
+    elif not isinstance(refine, bool):
+        raise TypeError(f"identify: refine must be True, False or a refinement (e.g. "
+                        f"LevenbergMarquardt()), got {shown(refine)}")
+    if not (isinstance(starts, int) and 1 <= starts <= population):
+        raise ValueError(f"refine_starts must be an int in [1, population={population}], "
+                         f"got {starts!r}")
+    if isinstance(refine, AbstractRefinement):
+        return refine
+    return LevenbergMarquardt(starts=starts) if refine else None
+
+
+def _described(method: AbstractRefinement | None) -> dict[str, Any] | None:
+    """A refinement's class and settings, for the fit's record of how it was made."""
+    if method is None:
+        return None
+    settings = dataclasses.asdict(method) if dataclasses.is_dataclass(method) else {}
+    return {"method": type(method).__name__} | settings
+
+
 def _unit_seeds(objective: Objective, init_population: Any) -> np.ndarray | None:
     """Physical starting points (a mapping name → value(s), a list of them, or a Fit) → unit box."""
     if init_population is None:
@@ -621,7 +649,7 @@ def identify(
     seed: int = 0,
     generations: int = 100,
     population: int | None = None,
-    refine: bool = True,
+    refine: bool | AbstractRefinement = True,
     weights: Mapping[str, float] | None = None,
     progress: bool = False,
     init_population: Any = None,
@@ -654,8 +682,10 @@ def identify(
     (channel → σ or :class:`~jaxflex.diagnosis.NoiseLevel`, every fitted channel) sets the
     weights from the channels' noise levels instead (:func:`jaxflex.objective.noise_weights`).
     ``init_population`` seeds the search with physical points (a mapping name → value or
-    values, a list of mappings, or a previous :class:`Fit`). ``refine`` polishes the result with
-    Levenberg–Marquardt from the ``refine_starts`` best candidates; ``intervals`` computes the
+    values, a list of mappings, or a previous :class:`Fit`). ``refine`` polishes the result:
+    ``True`` with Levenberg–Marquardt from the ``refine_starts`` best candidates, or as the
+    given refinement says (``refine=LevenbergMarquardt(starts=3, max_steps=200)``,
+    :mod:`jaxflex.refine`); ``False`` not at all. ``intervals`` computes the
     Gauss–Newton uncertainty at ``level``. ``progress`` reports the stages (search, refinement,
     intervals) on stderr: a bar on a terminal or in Jupyter, else a line per stage.
     ``criterion="prediction"`` fits the Kalman filter's one-step predictions instead of the
@@ -677,11 +707,7 @@ def identify(
             noise=noise, disturbance=disturbance)
     strategy = _strategy(search, method, generations, population, strategy_options)
     method, generations = strategy.name.lower(), strategy.generations
-    if not (isinstance(refine_starts, int) and 1 <= refine_starts <= strategy.population):
-        raise ValueError(
-            f"refine_starts must be an int in [1, population={strategy.population}], "
-            f"got {refine_starts!r}"
-        )
+    refinement_method = _refinement(refine, refine_starts, strategy.population)
     seeds = _unit_seeds(objective, init_population)
 
     evolution = run(
@@ -699,9 +725,9 @@ def identify(
 
     refinement = None
     estimate, cost, linearization = best, cost_search, None
-    if refine:
-        starts = _refinement_starts(objective, evolution, refine_starts)
-        refinement = refine_parameters(objective, starts)
+    if refinement_method is not None:
+        starts = _refinement_starts(objective, evolution, refinement_method.starts)
+        refinement = refinement_method(objective, starts)
         timing["refine"] = refinement.wall_time
         timing["refine_compile"] = refinement.compile_time
         stage(f"refinement: {refinement.result} after {refinement.steps} steps, cost "
@@ -715,7 +741,7 @@ def identify(
         warnings.append("no candidate gave a finite simulation: the fit is meaningless")
     if refinement is not None and refinement.result != "successful":
         warnings.append(f"refinement stopped early ({refinement.result}): {refinement.message}")
-    if not refine and intervals:
+    if refinement_method is None and intervals:
         warnings.append(
             "intervals computed at the search result, which is not refined to a least-squares "
             "optimum: they are only indicative"
@@ -759,8 +785,9 @@ def identify(
             "generations_run": evolution.generations,
             "tol": tol,
             "n_evaluations": evolution.n_evaluations,
-            "refine": refine,
-            "refine_starts": refine_starts,
+            "refine": refinement_method is not None,
+            "refine_starts": None if refinement_method is None else refinement_method.starts,
+            "refinement": _described(refinement_method),
             "channels": list(objective.channels),
             "weights": dict(zip(objective.channels, map(float, objective.weights), strict=True)),
             "noise": {c: v.to_dict() for c, v in noise_levels(noise).items()},

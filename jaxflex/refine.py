@@ -8,6 +8,7 @@ importable from here too, as identification uses the three together.
 
 from __future__ import annotations
 
+import abc
 import math
 import time
 from collections.abc import Mapping, Sequence
@@ -164,5 +165,33 @@ def refine(
     )
 
 
+class AbstractRefinement(abc.ABC):
+    """How :func:`jaxflex.identification.identify` polishes the search's result: from the
+    ``starts`` best candidates, a :class:`Refinement` of the objective. Subclass it for another
+    local method."""
 
-__all__ = ["Refinement", "refine"]
+    starts: int = 1
+
+    @abc.abstractmethod
+    def __call__(self, objective: Objective,
+                 starts: Sequence[Mapping[str, ArrayLike]]) -> Refinement:
+        """The refinement of ``objective`` from ``starts`` (free parameters, physical)."""
+
+
+@dataclass(frozen=True)
+class LevenbergMarquardt(AbstractRefinement):
+    """Bounded Levenberg–Marquardt in the search's unit box (:func:`refine`) from the
+    ``starts`` best candidates, with optimistix's tolerances and a step limit."""
+
+    starts: int = 1
+    rtol: float = 1e-6
+    atol: float = 1e-8
+    max_steps: int = 100
+
+    def __call__(self, objective: Objective,
+                 starts: Sequence[Mapping[str, ArrayLike]]) -> Refinement:
+        return refine(objective, starts, rtol=self.rtol, atol=self.atol,
+                      max_steps=self.max_steps)
+
+
+__all__ = ["AbstractRefinement", "LevenbergMarquardt", "Refinement", "refine"]

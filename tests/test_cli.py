@@ -157,10 +157,10 @@ def test_a_refinement_out_of_steps_warns_in_the_words_of_a_fit(monkeypatch, tmp_
     import functools
 
     from jaxflex import identification
-    from jaxflex.refine import refine
+    from jaxflex.refine import LevenbergMarquardt
 
-    monkeypatch.setattr(identification, "refine_parameters", functools.partial(refine,
-                                                                               max_steps=1))
+    monkeypatch.setattr(identification, "LevenbergMarquardt",
+                        functools.partial(LevenbergMarquardt, max_steps=1))
     status = main(["identify", str(EXAMPLE), *TINY_SEARCH[:4], "--quiet",
                    "--out", str(tmp_path / "f.json")])
     out, err = capsys.readouterr()

@@ -438,3 +438,19 @@ def test_a_search_object_is_the_method_shorthand_spelled_out(clean):
         identify(clean[:1], search=DE(), population=12)
     with pytest.raises(TypeError, match="search must be a strategy .* got 'de' \\(str\\)"):
         identify(clean[:1], search="de")
+
+
+def test_a_refinement_object_is_the_refine_shorthand_spelled_out(clean):
+    """``refine=LevenbergMarquardt(starts=2)`` is ``refine=True, refine_starts=2`` bit for bit,
+    and the fit records how it was refined."""
+    from jaxflex.refine import LevenbergMarquardt
+
+    kwargs = dict(method="de", population=8, generations=2, seed=1, bounds=BOUNDS,
+                  intervals=False)
+    shorthand = identify(clean[:1], refine=True, refine_starts=2, **kwargs)
+    spelled = identify(clean[:1], refine=LevenbergMarquardt(starts=2), **kwargs)
+    assert spelled.params == shorthand.params
+    assert spelled.settings["refinement"] == {"method": "LevenbergMarquardt", "starts": 2,
+                                              "rtol": 1e-6, "atol": 1e-8, "max_steps": 100}
+    with pytest.raises(TypeError, match="refine must be True, False or a refinement"):
+        identify(clean[:1], refine="lm", **kwargs)
