@@ -1,6 +1,7 @@
-"""The package's structural rules, checked statically: no module over 800 lines, and no cycle
+"""The package's structural rules, checked statically: no module over 800 lines, no cycle
 among the imports that run when a module is imported (those at module level, outside
-``if TYPE_CHECKING:``; an import inside a function runs only when it is called)."""
+``if TYPE_CHECKING:``; an import inside a function runs only when it is called), and no import
+at all, even inside a function, from a higher layer of :data:`LAYERS`."""
 
 from __future__ import annotations
 
@@ -19,6 +20,24 @@ def _module_name(path: Path) -> str:
 
 
 MODULES = {_module_name(p): p for p in sorted(PACKAGE.rglob("*.py"))}
+
+LAYERS: tuple[tuple[str, tuple[str, ...]], ...] = (
+    ("foundations", ("_arguments", "_io", "_linalg", "_progress", "registry", "parallel",
+                     "metrics", "signals", "units", "records", "noise", "testbed", "parameters",
+                     "stations")),
+    ("physics", ("fem", "modal", "effects", "drives", "sensors", "model", "simulation",
+                 "frequency_response")),
+    ("numerics", ("evolve", "least_squares")),
+    ("data", ("record_files", "data", "preprocess", "rest", "synthetic", "datasets", "arm",
+              "rigs", "diagnosis")),
+    ("estimation", ("objective", "intervals", "refine", "rigid", "kalman", "prediction_error",
+                    "identification", "comparison", "measured", "design", "initial_state",
+                    "prediction_report")),
+    ("analysis", ("discovery", "study")),
+    ("interface", ("plots", "demo", "cli", "distributed", "jaxflex", "__main__")),
+)
+"""The package's layers, lowest first, by top-level module or subpackage: a module imports
+only from its own layer and those below (``jaxflex`` is the package's ``__init__``)."""
 
 
 def _import_time_imports(node: ast.AST):
@@ -98,3 +117,31 @@ def test_the_cycle_check_finds_a_cycle():
     """The checker itself: a three-module cycle is found, a diamond is not a cycle."""
     assert _cycle({"a": {"b"}, "b": {"c"}, "c": {"a"}}) == ["a", "b", "c", "a"]
     assert _cycle({"a": {"b", "c"}, "b": {"d"}, "c": {"d"}, "d": set()}) is None
+
+
+def _part(module: str) -> str:
+    """The layer entry of a module: its top-level module or subpackage (``jaxflex``: the
+    package itself)."""
+    parts = module.split(".")
+    return parts[1] if len(parts) > 1 else parts[0]
+
+
+def test_no_module_imports_from_a_higher_layer():
+    rank = {part: i for i, (_, parts) in enumerate(LAYERS) for part in parts}
+    unplaced = sorted({_part(m) for m in MODULES} - set(rank))
+    assert not unplaced, f"modules in no layer of LAYERS: {unplaced}"
+    upward = []
+    for name, path in MODULES.items():
+        tree = ast.parse(path.read_text(encoding="utf-8"))
+        for node in ast.walk(tree):
+            if isinstance(node, ast.ImportFrom) and node.level == 0 and node.module:
+                targets = [node.module]
+            elif isinstance(node, ast.Import):
+                targets = [a.name for a in node.names]
+            else:
+                continue
+            for target in targets:
+                if target.split(".")[0] == "jaxflex" and rank[_part(target)] > rank[_part(name)]:
+                    upward.append(f"{name} imports {target} (line {node.lineno})")
+    assert not upward, "imports from a higher layer: " + "; ".join(upward)
+

@@ -9,14 +9,15 @@ name, and acts through the :meth:`~jaxflex.effects.Effect.readings` hook alone.
 
 from __future__ import annotations
 
+import abc
 import math
 from typing import ClassVar
 
 import equinox as eqx
 
-from jaxflex.data import KNOWN_UNITS
 from jaxflex.effects._base import Effect
 from jaxflex.parameters import ParameterSpec
+from jaxflex.records import KNOWN_UNITS
 
 CHANNEL_UNITS: dict[str, str] = {
     name: KNOWN_UNITS[name]
@@ -74,6 +75,6 @@ class ChannelEffect(Effect):
         sensor's channel is in the sensor's own unit."""
         return CHANNEL_UNITS.get(self.channel, "")
 
+    @abc.abstractmethod
     def spec(self) -> ParameterSpec:
         """The effect's one parameter."""
-        raise NotImplementedError
