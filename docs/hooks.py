@@ -168,7 +168,8 @@ def _export_names(module: griffe.Module) -> list[str]:
 
 def _public_path(obj: griffe.Object | griffe.Alias) -> str:
     """The last path along ``obj``'s chain of imports that has no private part: where the
-    reference renders it (``jaxflex.Effect`` → ``jaxflex.effects.Effect``, not ``._base``)."""
+    reference renders it (``jaxflex.AbstractEffect`` → ``jaxflex.effects.AbstractEffect``, not
+    ``._base``)."""
     public = obj.path
     while obj.is_alias:
         obj = obj.target

@@ -88,7 +88,7 @@ if TYPE_CHECKING:  # what static tools see; at run time __getattr__ imports each
         TorqueDrive,
         VoltageDrive,
     )
-    from jaxflex.effects import EFFECTS, Effect, get_effect, library, register_effect
+    from jaxflex.effects import EFFECTS, AbstractEffect, get_effect, library, register_effect
     from jaxflex.frequency_response import frf, mode_shapes, natural_frequencies
     from jaxflex.identification import Fit, identify, load_fit
     from jaxflex.model import Model
@@ -117,7 +117,7 @@ _SOURCES: dict[str, tuple[str, ...]] = {
     "jaxflex.drives": (
         "DRIVES", "CommandDrive", "CurrentDrive", "AbstractDrive", "TorqueDrive", "VoltageDrive",
     ),
-    "jaxflex.effects": ("EFFECTS", "Effect", "get_effect", "library", "register_effect"),
+    "jaxflex.effects": ("EFFECTS", "AbstractEffect", "get_effect", "library", "register_effect"),
     "jaxflex.frequency_response": ("frf", "mode_shapes", "natural_frequencies"),
     "jaxflex.identification": ("Fit", "identify", "load_fit"),
     "jaxflex.model": ("Model",),
@@ -170,7 +170,7 @@ __all__ = [
     "Diagnosis",
     "DiscoveryReport",
     "AbstractDrive",
-    "Effect",
+    "AbstractEffect",
     "Fit",
     "Model",
     "Outputs",

@@ -73,9 +73,9 @@ from typing import Any
 from jaxflex._arguments import shown
 from jaxflex.drives import DRIVES, AbstractDrive, CommandDrive
 from jaxflex.effects import (
+    AbstractEffect,
     ChannelEffect,
     DriveGain,
-    Effect,
     SensorGain,
     SensorOffset,
     get_effect,
@@ -201,7 +201,7 @@ def arm_from_dict(data: Mapping[str, Any], where: str = "arm") -> Model:
         raise ArmError(f"{where}: {err}") from None
 
 
-def _effects(top: _Table) -> tuple[Effect, ...]:
+def _effects(top: _Table) -> tuple[AbstractEffect, ...]:
     """``effects``: names, or tables of ``name`` and the effect's settings."""
     entries = top._get("effects", [])
     if not isinstance(entries, list):
@@ -285,7 +285,7 @@ def _sensor_dict(sensor: AbstractSensor) -> dict[str, Any]:
     }
 
 
-def _effect_dict(effect: Effect) -> dict[str, Any]:
+def _effect_dict(effect: AbstractEffect) -> dict[str, Any]:
     own = ("channel",) if isinstance(effect, ChannelEffect) else ()
     return {"name": effect.name} | {
         f.name: getattr(effect, f.name) for f in dataclasses.fields(effect) if f.name not in own
@@ -430,7 +430,7 @@ def _command_drive(table: _Table) -> tuple[CommandDrive, tuple[DriveGain, ...]]:
 
 def _sensors(
     top: _Table, length: float, drive: AbstractDrive
-) -> tuple[tuple[AbstractSensor, ...], tuple[Effect, ...]]:
+) -> tuple[tuple[AbstractSensor, ...], tuple[AbstractEffect, ...]]:
     """The ``[[sensors]]`` tables: ``type`` picks the class, the other keys are its fields; and
     the effects that identify each gain or offset given as a table of bounds. Each sensor logs
     its own channel, neither time nor the drive's input."""
@@ -438,7 +438,7 @@ def _sensors(
     if not isinstance(entries, list):
         raise top._wrong("sensors", "an array of tables ([[sensors]])", entries)
     sensors: list[AbstractSensor] = []
-    calibrations: list[Effect] = []
+    calibrations: list[AbstractEffect] = []
     for i, entry in enumerate(entries):
         table = _Table(entry, top.where, f"sensors[{i}].")
         kind = table.string("type")

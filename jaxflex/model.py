@@ -21,7 +21,7 @@ from jaxtyping import Array
 
 from jaxflex._arguments import shown
 from jaxflex.drives import AbstractDrive, TorqueDrive
-from jaxflex.effects._base import Effect, Structure, joint_friction
+from jaxflex.effects._base import AbstractEffect, Structure, joint_friction
 from jaxflex.fem import BeamPatterns
 from jaxflex.parameters import BASE_PARAMETERS, ParameterSpace, ParameterSpec, Params
 from jaxflex.sensors import AbstractSensor
@@ -49,7 +49,7 @@ class Model(eqx.Module):
     """
 
     testbed: Testbed = Testbed()
-    effects: tuple[Effect, ...] = ()
+    effects: tuple[AbstractEffect, ...] = ()
     n_substeps: int = eqx.field(static=True, default=2)
     base: tuple[ParameterSpec, ...] = eqx.field(static=True, default=BASE_PARAMETERS)
     drive: AbstractDrive = TorqueDrive()
@@ -97,8 +97,9 @@ class Model(eqx.Module):
         self._check_sensors()
         names = [e.name for e in self.effects]
         for effect in self.effects:
-            if not isinstance(effect, Effect):
-                raise TypeError(f"effects must be Effect instances, got {type(effect).__name__}")
+            if not isinstance(effect, AbstractEffect):
+                raise TypeError(f"effects must be effects (e.g. Payload()), got "
+                                f"{type(effect).__name__}")
         if len(set(names)) != len(names):
             raise ValueError(f"an effect appears twice: {names}")
         for x in self.stations:
@@ -177,7 +178,7 @@ class Model(eqx.Module):
     def effect_names(self) -> tuple[str, ...]:
         return tuple(e.name for e in self.effects)
 
-    def with_effects(self, *effects: Effect) -> Model:
+    def with_effects(self, *effects: AbstractEffect) -> Model:
         """A copy with more effects appended."""
         return dataclasses.replace(self, effects=self.effects + tuple(effects))
 

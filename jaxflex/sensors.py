@@ -285,7 +285,7 @@ SENSORS: Registry[AbstractSensor] = Registry(
 
 def calibrated(model: Model, params: Params, outputs: Outputs) -> Outputs:
     """``outputs`` after the model's effects on the readings (a sensor's gain or offset, see
-    :meth:`~jaxflex.effects.Effect.readings`), on the simulator's outputs and the sensors'
+    :meth:`~jaxflex.effects.AbstractEffect.readings`), on the simulator's outputs and the sensors'
     readings alike; the motion is what the solve gave."""
     from jaxflex.simulation import OUTPUT_NAMES
 

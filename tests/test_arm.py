@@ -13,7 +13,7 @@ from helpers import ARMS, REFERENCE_ARM, arm_text
 from jaxflex import Model, identify, make_records, reference_parameters, simulate
 from jaxflex.arm import ArmError, arm_from_dict, arm_to_dict, arm_to_toml, load_arm
 from jaxflex.drives import VoltageDrive
-from jaxflex.effects import Effect, SensorGain, register_effect
+from jaxflex.effects import AbstractEffect, SensorGain, register_effect
 from jaxflex.parameters import ParameterSpec
 from jaxflex.sensors import Accelerometer, DeflectionSensor, Encoder, StrainGauge, Tachometer
 from jaxflex.signals import reference_input
@@ -188,7 +188,7 @@ def test_n_modes_travels_from_the_arm_file_through_a_fit_description(tmp_path):
     assert "n_modes" not in describe_model(load_arm(ARMS / "reference.toml"))["simulation"]
 
 
-class _HubSpring(Effect):
+class _HubSpring(AbstractEffect):
     """A user's own effect: a torsional spring at the hub, ``k_s·θ`` opposing the angle."""
 
     name: ClassVar[str] = "hub_spring"

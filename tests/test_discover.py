@@ -36,7 +36,7 @@ from jaxflex.discovery._engine import Engine
 from jaxflex.discovery._universe import Slot
 from jaxflex.discovery.loop import _initial_params, _rigid
 from jaxflex.discovery.scores import score_statistic
-from jaxflex.effects import Effect, Stribeck, get_effect
+from jaxflex.effects import AbstractEffect, Stribeck, get_effect
 from jaxflex.metrics import nrmse
 from jaxflex.model import Model
 from jaxflex.parameters import ParameterSpec
@@ -48,7 +48,7 @@ MODERATE = {"payload": 0.025, "delay": 0.004, "motor_lag": 0.006, "gravity": 0.0
             "root_compliance": 0.02, "stribeck": 0.04}
 
 
-class QuadraticDamping(Effect):
+class QuadraticDamping(AbstractEffect):
     """Air drag on the link: a joint torque ``c_q θ'|θ'|`` — not in the library."""
 
     name: ClassVar[str] = "quadratic_damping"
@@ -60,7 +60,7 @@ class QuadraticDamping(Effect):
         return params["c_q"] * velocity * jnp.abs(velocity)
 
 
-class StickyPatch(Effect):
+class StickyPatch(AbstractEffect):
     """A second friction regime: extra Coulomb friction beyond 45° (a worn bearing race)."""
 
     name: ClassVar[str] = "sticky_patch"
@@ -142,7 +142,7 @@ def test_candidates_by_name_profile_stribeck_and_validate():
     with pytest.raises(ValueError, match="appears twice"):
         candidate_set(["delay", "delay"])
 
-    class NoNull(Effect):
+    class NoNull(AbstractEffect):
         name: ClassVar[str] = "no_null"
         parameters: ClassVar[tuple[ParameterSpec, ...]] = (
             ParameterSpec("k", "1", 0.1, 1.0, 0.5),)

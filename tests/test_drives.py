@@ -7,7 +7,7 @@ import pytest
 
 from jaxflex import Model, reference_parameters, simulate
 from jaxflex.drives import CurrentDrive, TorqueDrive, VoltageDrive, get_drive
-from jaxflex.effects import Effect
+from jaxflex.effects import AbstractEffect
 from jaxflex.signals import reference_input
 
 ROTFLEX = dict(
@@ -20,7 +20,7 @@ ROTFLEX = dict(
 )
 
 
-class _Viscous(Effect):
+class _Viscous(AbstractEffect):
     """A viscous joint friction of fixed coefficient, written here for the comparison."""
 
     name: ClassVar[str] = "test_viscous"

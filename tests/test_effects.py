@@ -15,8 +15,8 @@ from scipy.special import ellipk
 
 from jaxflex.effects import (
     EFFECTS,
+    AbstractEffect,
     Delay,
-    Effect,
     Gravity,
     MotorLag,
     Payload,
@@ -412,7 +412,7 @@ def test_gradients_at_the_null_are_finite_nonzero_and_match_finite_differences()
 
 
 # --- the extension point ----------------------------------------------------------------------
-class TorqueOffset(Effect):
+class TorqueOffset(AbstractEffect):
     """A constant torque on the joint (e.g. an uncompensated amplifier offset), as a load."""
 
     name: ClassVar[str] = "torque_offset"

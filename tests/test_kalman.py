@@ -11,7 +11,7 @@ import scipy.linalg
 from jaxflex import Model
 from jaxflex.data import Record
 from jaxflex.diagnosis import autocorrelation
-from jaxflex.effects import Effect
+from jaxflex.effects import AbstractEffect
 from jaxflex.kalman import predict
 from jaxflex.simulation import simulate
 from jaxflex.testbed import Testbed
@@ -141,7 +141,7 @@ def test_bad_horizons_and_cross_sample_effects_are_refused():
         with pytest.raises(ValueError, match=message):
             predict(model, params, record, [horizon], noise=SIGMA, disturbance=0.01)
 
-    class RunningMean(Effect):  # a sensor that averages its readings so far
+    class RunningMean(AbstractEffect):  # a sensor that averages its readings so far
         name = "running_mean"
 
         def readings(self, params, readings):

@@ -1,4 +1,4 @@
-"""Effect sensor_gain: one channel's reading, and only it, scaled by a calibration factor."""
+"""The effect sensor_gain: one channel's reading, and only it, scaled by a calibration factor."""
 
 import equinox as eqx
 import numpy as np

@@ -1,4 +1,4 @@
-"""Effect sensor_offset: a constant added to one channel's reading, and only to it."""
+"""The effect sensor_offset: a constant added to one channel's reading, and only to it."""
 
 import numpy as np
 import pytest

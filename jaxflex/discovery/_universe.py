@@ -14,7 +14,7 @@ import numpy as np
 from jaxtyping import Array, ArrayLike, Float
 
 from jaxflex.discovery.candidates import Candidate, Variant
-from jaxflex.effects import Effect
+from jaxflex.effects import AbstractEffect
 from jaxflex.model import Model
 from jaxflex.objective import Objective, free_specs
 from jaxflex.parameters import ParameterSpace
@@ -26,7 +26,7 @@ class Slot:
 
     candidate: int
     member: int
-    effect: Effect  # the original effect
+    effect: AbstractEffect  # the original effect
     names: tuple[str, ...]  # its parameter names in the universe
     own_names: tuple[str, ...]  # its own parameter names
 

@@ -13,8 +13,8 @@ from jaxtyping import Array, Float
 
 from jaxflex.effects import (
     CALIBRATED_CHANNELS,
+    AbstractEffect,
     DriveGain,
-    Effect,
     SensorGain,
     SensorOffset,
     get_effect,
@@ -28,11 +28,11 @@ if TYPE_CHECKING:
     from jaxflex.model import Model
 
 
-class Variant(Effect):
+class Variant(AbstractEffect):
     """An effect under a suffixed name with suffixed parameters, so that several settings of one
     effect (e.g. Stribeck velocities) can sit side by side in one model."""
 
-    inner: Effect
+    inner: AbstractEffect
     suffix: str = eqx.field(static=True)
 
     @property
@@ -74,7 +74,7 @@ class Candidate:
     """A candidate effect: one instance, or a profile of instances over a static setting."""
 
     name: str
-    effects: tuple[Effect, ...]
+    effects: tuple[AbstractEffect, ...]
 
     @property
     def parameters(self) -> tuple[ParameterSpec, ...]:
@@ -100,7 +100,7 @@ def parameter_names(candidate: Candidate) -> tuple[str, ...]:
     return tuple(p.name for p in candidate.parameters)
 
 
-def as_candidate(item: str | Effect | Candidate) -> Candidate:
+def as_candidate(item: str | AbstractEffect | Candidate) -> Candidate:
     """A candidate from a name (profiled if its class has ``grid()``), an effect or itself."""
     if isinstance(item, Candidate):
         cand = item
@@ -108,10 +108,11 @@ def as_candidate(item: str | Effect | Candidate) -> Candidate:
         effect = get_effect(item)
         grid = getattr(type(effect), "grid", None)
         cand = Candidate(item, tuple(grid()) if callable(grid) else (effect,))
-    elif isinstance(item, Effect):
+    elif isinstance(item, AbstractEffect):
         cand = Candidate(item.name, (item,))
     else:
-        raise TypeError(f"a candidate must be an effect name or Effect, got {type(item).__name__}")
+        raise TypeError(f"a candidate must be an effect name or an effect, got "
+                        f"{type(item).__name__}")
     if not cand.parameters:
         raise ValueError(f"candidate {cand.name!r} has no parameters to test")
     if all(spec.null is None for spec in cand.parameters):
@@ -163,7 +164,7 @@ def default_candidates(
 
 
 def candidate_set(
-    candidates: Iterable[str | Effect | Candidate] | None = None,
+    candidates: Iterable[str | AbstractEffect | Candidate] | None = None,
     channels: Iterable[str] | None = None,
     model: Model | None = None,
 ) -> tuple[Candidate, ...]:
@@ -171,7 +172,7 @@ def candidate_set(
     of ``model`` (Stribeck profiled)."""
     if candidates is None:
         candidates = default_candidates(channels, model)
-    elif isinstance(candidates, (str, Effect)):
+    elif isinstance(candidates, (str, AbstractEffect)):
         candidates = [candidates]
     result = tuple(as_candidate(c) for c in candidates)
     names = [c.name for c in result]

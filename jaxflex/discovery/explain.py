@@ -22,7 +22,7 @@ from jaxflex.diagnosis import Diagnosis
 from jaxflex.diagnosis.report import QUANTISED_EXCESS_LIMIT, RMS_RATIO_LIMIT, ChannelDiagnosis
 from jaxflex.discovery.candidates import Variant
 from jaxflex.discovery.scores import ScoreResult
-from jaxflex.effects import Effect
+from jaxflex.effects import AbstractEffect
 
 CONCENTRATION = 1.5
 
@@ -97,18 +97,18 @@ RULES: dict[str, Rule] = {r.name: r for r in (
 """The rules, by name; a claim is made only where its rule's condition holds."""
 
 
-def _inner(effect: Effect) -> Effect:
+def _inner(effect: AbstractEffect) -> AbstractEffect:
     return effect.inner if isinstance(effect, Variant) else effect
 
 
-def _hooks(effect: Effect) -> set[str]:
+def _hooks(effect: AbstractEffect) -> set[str]:
     """Which model hooks an effect overrides."""
     inner = _inner(effect)
     return {h for h in ("structure", "friction", "loads", "input_torque")
-            if getattr(type(inner), h) is not getattr(Effect, h)}
+            if getattr(type(inner), h) is not getattr(AbstractEffect, h)}
 
 
-def delays_the_torque(effect: Effect) -> bool:
+def delays_the_torque(effect: AbstractEffect) -> bool:
     """An input effect with a parameter in seconds (a delay, a lag): the lag rule applies."""
     return "input_torque" in _hooks(effect) and any(
         p.unit == "s" for p in _inner(effect).parameters)
@@ -136,7 +136,7 @@ def _p(p: float) -> str:
 # --- the statistics -----------------------------------------------------------------------------
 
 
-def _resonance(effect: Effect, diagnosis: Diagnosis | None) -> dict[str, Any] | None:
+def _resonance(effect: AbstractEffect, diagnosis: Diagnosis | None) -> dict[str, Any] | None:
     """The resonance shift that points most to ``effect``: the largest relative to the
     resolution, among the significant ones of the allowed sign (``cited``), else the largest."""
     if ("structure" not in _hooks(effect) or diagnosis is None or diagnosis.frf is None
@@ -167,7 +167,7 @@ def _lag(channel: ChannelDiagnosis) -> dict[str, Any]:
             "band": xc.band, "rate_value": rate_at, "rate_peak": rate_peak, "cited": cited}
 
 
-def _lag_evidence(effect: Effect, diagnosis: Diagnosis | None) -> dict[str, Any] | None:
+def _lag_evidence(effect: AbstractEffect, diagnosis: Diagnosis | None) -> dict[str, Any] | None:
     """The residual–torque correlation of the first channel where it points to a late torque
     (``cited``), else of the first channel; only for an effect that delays the torque."""
     if not delays_the_torque(effect) or diagnosis is None or not diagnosis.channels:
@@ -176,7 +176,7 @@ def _lag_evidence(effect: Effect, diagnosis: Diagnosis | None) -> dict[str, Any]
     return next((g for g in lags if g["cited"]), lags[0])
 
 
-def _concentration(effect: Effect, diagnosis: Diagnosis | None) -> dict[str, Any] | None:
+def _concentration(effect: AbstractEffect, diagnosis: Diagnosis | None) -> dict[str, Any] | None:
     if not _hooks(effect) & {"friction", "loads"} or diagnosis is None:
         return None
     conds = sorted(diagnosis.localisation.conditions, key=lambda c: -c.concentration)
@@ -187,7 +187,7 @@ def _concentration(effect: Effect, diagnosis: Diagnosis | None) -> dict[str, Any
             "concentration": c.concentration, "cited": bool(c.concentration > CONCENTRATION)}
 
 
-def collect_evidence(result: ScoreResult, effect: Effect, diagnosis: Diagnosis | None,
+def collect_evidence(result: ScoreResult, effect: AbstractEffect, diagnosis: Diagnosis | None,
                      refit: Any = None, *, level: float, holdout_error: float | None = None,
                      skipped: str | None = None) -> dict[str, Any]:
     """The named statistics of one candidate at one step.
@@ -350,7 +350,7 @@ def sentence(result: ScoreResult) -> str:
     return text + "."
 
 
-def explain(result: ScoreResult, effect: Effect, diagnosis: Diagnosis | None,
+def explain(result: ScoreResult, effect: AbstractEffect, diagnosis: Diagnosis | None,
             level: float | None = None) -> str:
     """The claims on one score test outside the loop (no refit): its verdict by the score
     alone and the evidence of ``diagnosis`` that points to ``effect``, by :data:`RULES`.

@@ -28,7 +28,7 @@ from jaxflex.discovery.explain import annotate, collect_evidence, ranking_key
 from jaxflex.discovery.operations import full_params
 from jaxflex.discovery.report import Confirmation, DiscoveryFit, DiscoveryReport, Step
 from jaxflex.discovery.scores import ALPHA, ScoreResult
-from jaxflex.effects import Effect
+from jaxflex.effects import AbstractEffect
 from jaxflex.model import Model
 from jaxflex.objective import (
     as_dataset,
@@ -177,7 +177,7 @@ def discover(
     records: Dataset | Iterable[Record],
     holdout: Dataset | Iterable[Record] | None = None,
     model: Model | None = None,
-    candidates: Iterable[str | Effect | Candidate] | None = None,
+    candidates: Iterable[str | AbstractEffect | Candidate] | None = None,
     max_steps: int = 4,
     alpha: float = ALPHA,
     seed: int = 0,

@@ -19,7 +19,7 @@ from jaxflex.discovery._engine import Engine
 from jaxflex.discovery.candidates import Candidate, as_candidate, candidate_set
 from jaxflex.discovery.report import DiscoveryFit
 from jaxflex.discovery.scores import ALPHA, ScoreResult
-from jaxflex.effects import Effect
+from jaxflex.effects import AbstractEffect
 from jaxflex.model import Model
 from jaxflex.objective import as_dataset
 
@@ -41,7 +41,7 @@ def score_tests(
     model: Model,
     params: Mapping[str, ArrayLike],
     records: Dataset | Iterable[Record],
-    candidates: Iterable[str | Effect | Candidate] | None = None,
+    candidates: Iterable[str | AbstractEffect | Candidate] | None = None,
     *,
     alpha: float = ALPHA,
     noise: Noise | None = None,
@@ -87,7 +87,7 @@ def refit(
 
 def add_effect(
     fit: DiscoveryFit | Any,
-    effect: str | Effect,
+    effect: str | AbstractEffect,
     records: Dataset | Iterable[Record],
     *,
     model: Model | None = None,

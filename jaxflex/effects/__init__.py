@@ -1,10 +1,10 @@
 """The library of physical effects a model can be extended with, and its registry.
 
 Every module of this package (other than the private ones) defines effects; importing the
-package collects each :class:`Effect` subclass with its own ``name`` into :data:`EFFECTS`, so a
-new effect is one new file here and nothing else. Effects on one output channel (a sensor's gain
-or offset, :mod:`jaxflex.effects._channel`) are named with their channel:
-``get_effect("sensor_gain:root_strain")``.
+package collects each :class:`AbstractEffect` subclass with its own ``name`` into
+:data:`EFFECTS`, so a new effect is one new file here and nothing else. Effects on one output
+channel (a sensor's gain or offset, :mod:`jaxflex.effects._channel`) are named with their
+channel: ``get_effect("sensor_gain:root_strain")``.
 """
 
 from __future__ import annotations
@@ -13,7 +13,7 @@ import importlib
 import inspect
 import pkgutil
 
-from jaxflex.effects._base import Effect, Structure, joint_friction
+from jaxflex.effects._base import AbstractEffect, Structure, joint_friction
 from jaxflex.effects._channel import CALIBRATED_CHANNELS, ChannelEffect
 from jaxflex.effects.delay import Delay
 from jaxflex.effects.drive_gain import DriveGain
@@ -28,7 +28,7 @@ from jaxflex.effects.torque_offset import TorqueOffset
 from jaxflex.registry import Registry
 
 
-def _collect() -> list[type[Effect]]:
+def _collect() -> list[type[AbstractEffect]]:
     """Effect classes defined in this package's public modules."""
     found = []
     for info in sorted(pkgutil.iter_modules(__path__), key=lambda m: m.name):
@@ -36,26 +36,28 @@ def _collect() -> list[type[Effect]]:
             continue
         module = importlib.import_module(f"{__name__}.{info.name}")
         found += [cls for _, cls in inspect.getmembers(module, inspect.isclass)
-                  if issubclass(cls, Effect) and cls.__module__ == module.__name__]
+                  if issubclass(cls, AbstractEffect) and cls.__module__ == module.__name__]
     return found
 
 
-def _effect_name(cls: type[Effect]) -> str:
+def _effect_name(cls: type[AbstractEffect]) -> str:
     return cls.key if issubclass(cls, ChannelEffect) else cls.name
 
 
-EFFECTS: Registry[Effect] = Registry("effect", Effect, key=_effect_name, classes=_collect())
+EFFECTS: Registry[AbstractEffect] = Registry(
+    "effect", AbstractEffect, key=_effect_name, classes=_collect()
+)
 """Effect name → class, for every effect in the library (and those registered)."""
 
 
-def register_effect(cls: type[Effect]) -> type[Effect]:
+def register_effect(cls: type[AbstractEffect]) -> type[AbstractEffect]:
     """Add a user-defined effect class to :data:`EFFECTS` under its ``name`` (also as a class
     decorator), so that arm files, fit files and discovery can name it like the library's own.
     """
     return EFFECTS.register(cls)
 
 
-def get_effect(name: str, **kwargs) -> Effect:
+def get_effect(name: str, **kwargs) -> AbstractEffect:
     """An effect by name, built with ``kwargs`` (e.g. ``get_effect("payload", rotary=True)``);
     ``KEY:CHANNEL`` names a channel effect's channel (``get_effect("sensor_gain:root_strain")``)."""
     key, sep, channel = name.partition(":")
@@ -70,7 +72,7 @@ def get_effect(name: str, **kwargs) -> Effect:
     return cls(**kwargs)
 
 
-def library() -> tuple[Effect, ...]:
+def library() -> tuple[AbstractEffect, ...]:
     """One default instance of every effect in the library (in name order); a channel effect
     once for each of :data:`~jaxflex.effects._channel.CALIBRATED_CHANNELS`."""
     return tuple(
@@ -90,7 +92,7 @@ __all__ = [
     "ChannelEffect",
     "Delay",
     "DriveGain",
-    "Effect",
+    "AbstractEffect",
     "Gravity",
     "MotorLag",
     "Payload",

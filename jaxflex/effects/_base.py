@@ -3,13 +3,16 @@
 An effect is a small :class:`equinox.Module` that declares its parameters (with bounds and a
 *null value* at which it vanishes) and overrides one or more hooks of the model:
 
-* :meth:`Effect.structure` — change the mass or stiffness matrices (a payload, a compliant root);
-* :meth:`Effect.friction` — add a joint torque opposing the joint velocity (Stribeck friction);
-* :meth:`Effect.loads` — add position-dependent generalised forces ``Σ_i a_i(θ, θ') · f_i``
-  with constant shapes ``f_i`` (gravity in a tilted plane);
-* :meth:`Effect.input_torque` — transform the applied torque signal (a delay, a motor lag);
-* :meth:`Effect.readings` — act on the named output channels after the solve (a sensor's gain
-  or offset): the motion is untouched, only what is read changes.
+* :meth:`~AbstractEffect.structure` — change the mass or stiffness matrices (a payload, a
+  compliant root);
+* :meth:`~AbstractEffect.friction` — add a joint torque opposing the joint velocity (Stribeck
+  friction);
+* :meth:`~AbstractEffect.loads` — add position-dependent generalised forces
+  ``Σ_i a_i(θ, θ') · f_i`` with constant shapes ``f_i`` (gravity in a tilted plane);
+* :meth:`~AbstractEffect.input_torque` — transform the applied torque signal (a delay, a motor
+  lag);
+* :meth:`~AbstractEffect.readings` — act on the named output channels after the solve (a
+  sensor's gain or offset): the motion is untouched, only what is read changes.
 
 At the null values every hook must return its input unchanged (or add exactly zero), so the model
 with the effect *is* the base model there and score tests can differentiate at that point.
@@ -42,7 +45,7 @@ class Structure(eqx.Module):
     length: float = eqx.field(static=True)
 
 
-class Effect(eqx.Module):
+class AbstractEffect(eqx.Module):
     """Base class of a physical effect; subclasses override the hooks they need.
 
     Class attributes document the effect for people and for the discovery ranking:

@@ -4,7 +4,7 @@ A rig's sensor reads ``gain · quantity + offset``; when the gain or offset the 
 is not the true one, the arm moves as before and only the reading changes. Such an effect is
 built for one channel (``SensorGain(channel="root_strain")``, or by name
 ``get_effect("sensor_gain:root_strain")``), carries that channel in its name and its parameter's
-name, and acts through the :meth:`~jaxflex.effects.Effect.readings` hook alone.
+name, and acts through the :meth:`~jaxflex.effects.AbstractEffect.readings` hook alone.
 """
 
 from __future__ import annotations
@@ -15,7 +15,7 @@ from typing import ClassVar
 
 import equinox as eqx
 
-from jaxflex.effects._base import Effect
+from jaxflex.effects._base import AbstractEffect
 from jaxflex.parameters import ParameterSpec
 from jaxflex.records import KNOWN_UNITS
 
@@ -47,7 +47,7 @@ class _Parameters:
         return ((owner() if instance is None else instance).spec(),)
 
 
-class ChannelEffect(Effect):
+class ChannelEffect(AbstractEffect):
     """Base of the effects that act on one output ``channel`` after the solve."""
 
     channel: str = eqx.field(static=True, default="root_strain")

@@ -8,11 +8,11 @@ import jax
 import jax.numpy as jnp
 from jaxtyping import Array, Float
 
-from jaxflex.effects._base import Effect
+from jaxflex.effects._base import AbstractEffect
 from jaxflex.parameters import ParameterSpec, Params
 
 
-class Delay(Effect):
+class Delay(AbstractEffect):
     """The joint receives the recorded torque ``d`` seconds late.
 
     The recorded torque is a zero-order hold on a grid of step ``h``; its delayed copy, averaged

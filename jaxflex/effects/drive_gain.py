@@ -8,12 +8,12 @@ from typing import ClassVar
 import equinox as eqx
 from jaxtyping import Array, Float
 
-from jaxflex.effects._base import Effect
+from jaxflex.effects._base import AbstractEffect
 from jaxflex.effects._channel import _Parameters
 from jaxflex.parameters import ParameterSpec, Params
 
 
-class DriveGain(Effect):
+class DriveGain(AbstractEffect):
     """Scales the drive's torque: ``τ ← (torque_per_unit / reference) · τ``.
 
     A rig that logs a raw command (PWM or DAC counts, :class:`~jaxflex.drives.CommandDrive`)

@@ -7,14 +7,14 @@ from typing import ClassVar
 import jax.numpy as jnp
 from jaxtyping import Array, Float
 
-from jaxflex.effects._base import Effect, Structure
+from jaxflex.effects._base import AbstractEffect, Structure
 from jaxflex.parameters import ParameterSpec, Params
 
 GRAVITY = 9.81
 """Standard gravitational acceleration, m/s²."""
 
 
-class Gravity(Effect):
+class Gravity(AbstractEffect):
     """The plane of motion is tilted by ``phi`` from horizontal.
 
     Gravity's in-plane component ``g sin(phi)`` points down the slope; with ``θ = 0`` along the

@@ -8,14 +8,14 @@ import jax
 import jax.numpy as jnp
 from jaxtyping import Array, Float
 
-from jaxflex.effects._base import Effect
+from jaxflex.effects._base import AbstractEffect
 from jaxflex.parameters import ParameterSpec, Params
 
 _UNDERFLOW = 700.0
 """``exp(−h/T)`` is taken as exactly 0 below ``T = h/700`` (it is < 1e-304 there)."""
 
 
-class MotorLag(Effect):
+class MotorLag(AbstractEffect):
     """The joint torque ``τ_j`` follows the recorded torque ``τ`` through ``T τ_j' = τ − τ_j``.
 
     For the zero-order-hold input the lag is discretised exactly: with ``a = exp(−h/T)``,

@@ -7,7 +7,7 @@ from typing import ClassVar
 import equinox as eqx
 import jax.numpy as jnp
 
-from jaxflex.effects._base import Effect, Structure
+from jaxflex.effects._base import AbstractEffect, Structure
 from jaxflex.parameters import ParameterSpec, Params
 
 MASS = ParameterSpec(
@@ -43,7 +43,7 @@ class _PayloadParameters:
         return (MASS, ROTARY_INERTIA)
 
 
-class Payload(Effect):
+class Payload(AbstractEffect):
     """Tip mass ``m_p`` (and rotary inertia ``J_p`` if ``rotary=True``) fixed to the link end.
 
     The payload moves with the tip: its velocity is ``L θ' + ẇ_L`` and its angular velocity

@@ -8,7 +8,7 @@ from typing import ClassVar
 import equinox as eqx
 import jax.numpy as jnp
 
-from jaxflex.effects._base import Effect, Structure
+from jaxflex.effects._base import AbstractEffect, Structure
 from jaxflex.fem import BeamPatterns
 from jaxflex.parameters import ParameterSpec, Params
 
@@ -18,7 +18,7 @@ def _patterns(length: float, n_elements: int) -> BeamPatterns:
     return BeamPatterns(length, n_elements)
 
 
-class RootCompliance(Effect):
+class RootCompliance(AbstractEffect):
     """Releases the clamp ``w'(0) = 0`` into a rotational spring of compliance ``c_r``.
 
     The root rotation ``ψ = w'(0)`` gets the spring energy ``ψ²/(2 c_r)`` and couples to the

@@ -9,7 +9,7 @@ import equinox as eqx
 import jax.numpy as jnp
 from jaxtyping import Array
 
-from jaxflex.effects._base import Effect
+from jaxflex.effects._base import AbstractEffect
 from jaxflex.parameters import ParameterSpec, Params
 
 STRIBECK_VELOCITY_GRID: tuple[float, ...] = (0.03, 0.1, 0.3)
@@ -48,7 +48,7 @@ class _Parameters:
         return (EXCESS, velocity_spec((owner() if instance is None else instance).v_s))
 
 
-class Stribeck(Effect):
+class Stribeck(AbstractEffect):
     """Adds ``Δτ_s · exp(−(|θ'|/v_s)^δ) · tanh(θ'/ω_s)`` to the joint friction.
 
     ``Δτ_s = tau_s − tau_c ≥ 0`` is the excess of the breakaway (static) torque over the Coulomb

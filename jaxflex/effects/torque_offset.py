@@ -6,11 +6,11 @@ from typing import ClassVar
 
 from jaxtyping import Array, Float
 
-from jaxflex.effects._base import Effect
+from jaxflex.effects._base import AbstractEffect
 from jaxflex.parameters import ParameterSpec, Params
 
 
-class TorqueOffset(Effect):
+class TorqueOffset(AbstractEffect):
     """Adds a constant ``tau_0`` to the torque the drive applies: ``τ ← τ + tau_0``.
 
     With a voltage or current drive the offset is in N m at the joint, so a voltage offset
