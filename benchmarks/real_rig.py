@@ -192,11 +192,11 @@ def prediction(model, params, fit_run, held_out) -> tuple[dict, object]:
     """Run 985 at the fit run's rate: the fit's simulation beside its Kalman filter's
     predictions, the filter's noise levels fitted by maximum likelihood on the fit run."""
     every = int(round(fit_run.dt / held_out.dt))
-    [on_fit] = compare_predictions(model, params, [model_record(model, fit_run)], HORIZONS,
+    [on_fit] = compare_predictions([model_record(model, fit_run)], model, params, HORIZONS,
                                    fit_names=[fit_run.name])
     levels = on_fit.prediction
-    [on_held] = compare_predictions(model, params,
-                                    [decimated(model_record(model, held_out), every)],
+    [on_held] = compare_predictions([decimated(model_record(model, held_out), every)],
+                                    model, params,
                                     HORIZONS, noise=levels.sigma_y,
                                     disturbance=levels.disturbance)
     return {
@@ -242,9 +242,9 @@ def criteria(arm, held_out, every: int, budget: tuple[int, int], seed: int) -> d
             noise = {"noise": fit.settings["measurement_noise"],
                      "disturbance": fit.settings["disturbance"]}
         else:
-            [own] = compare_predictions(model, params, [first], ())
+            [own] = compare_predictions([first], model, params, ())
             noise = {"noise": own.prediction.sigma_y, "disturbance": own.prediction.disturbance}
-        [row] = compare_predictions(model, params, [whole], HORIZONS, **noise)
+        [row] = compare_predictions([whole], model, params, HORIZONS, **noise)
         results[criterion] = {"parameters": params, "wall_time_s": wall,
                               "disturbance_n_m": noise["disturbance"],
                               "measurement_noise": dict(noise["noise"]),

@@ -195,7 +195,7 @@ _filter_jit = eqx.filter_jit(filter_core)
 _predict_jit = eqx.filter_jit(predict_core)
 
 
-def measurement_noise(model: Model, records: Sequence[Record], channels: Sequence[str],
+def measurement_noise(records: Sequence[Record], model: Model, channels: Sequence[str],
                       noise: Noise | None = None) -> dict[str, float]:
     """Each channel's measurement-noise standard deviation for the filter: ``noise`` where given
     (channel → σ or :class:`~jaxflex.diagnosis.NoiseLevel`), else the rig's sensor's
@@ -261,7 +261,7 @@ def _arrays(record: Record, channels: Sequence[str]) -> tuple[Array, Array, Arra
     return jnp.asarray(record.input), jnp.asarray(measured), jnp.asarray(present)
 
 
-def log_likelihood(model: Model, params: Params, records: Sequence[Record],
+def log_likelihood(records: Sequence[Record], model: Model, params: Params,
                    channels: Sequence[str], sigma_y: Float[Array, " C"],
                    disturbance: float) -> float:
     """The innovations' Gaussian log-likelihood summed over ``records``."""
@@ -278,7 +278,7 @@ DISTURBANCE_RANGE = (1e-9, 10.0)
 """Range (N m) over which the process-noise torque level is fitted by maximum likelihood."""
 
 
-def fit_noise(model: Model, params: Params, records: Sequence[Record],
+def fit_noise(records: Sequence[Record], model: Model, params: Params,
               channels: Sequence[str], levels: Mapping[str, float],
               free: Sequence[str] = (), disturbance: float | None = None,
               ) -> tuple[dict[str, float], float]:
@@ -299,7 +299,7 @@ def fit_noise(model: Model, params: Params, records: Sequence[Record],
 
     def negative(z):
         sigma, tau = unpack(np.atleast_1d(z))
-        value = log_likelihood(model, params, records, channels, jnp.asarray(sigma), tau)
+        value = log_likelihood(records, model, params, channels, jnp.asarray(sigma), tau)
         return -value if math.isfinite(value) else math.inf
 
     lower, upper = (math.log(v) for v in DISTURBANCE_RANGE)
@@ -332,9 +332,9 @@ def _simplex(start: Sequence[float]) -> np.ndarray:
 
 
 def predict(
+    records: Record | Sequence[Record],
     model: Model,
     params: Mapping[str, ArrayLike],
-    records: Record | Sequence[Record],
     horizons: Sequence[float] = (),
     *,
     channels: Sequence[str] | None = None,
@@ -360,9 +360,9 @@ def predict(
     steps = [horizon_steps(horizons, r.dt, [r]) for r in records]
     if disturbance is not None and not (math.isfinite(disturbance) and disturbance > 0):
         raise ValueError(f"disturbance must be a positive torque (N m), got {disturbance!r}")
-    levels = measurement_noise(model, records, channels, noise)
+    levels = measurement_noise(records, model, channels, noise)
     free = [c for c in channels if c not in dict(noise or {})] if fit_measurement_noise else []
-    levels, disturbance = fit_noise(model, values, records, channels, levels, free, disturbance)
+    levels, disturbance = fit_noise(records, model, values, channels, levels, free, disturbance)
     sigma_y = jnp.asarray([levels[c] for c in channels])
     results = []
     for record, ks in zip(records, steps, strict=True):

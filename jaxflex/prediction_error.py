@@ -72,9 +72,9 @@ def prediction_objective(
     check_per_sample(objective.model, values, channels)
     if disturbance is not None and not disturbance > 0:
         raise ValueError(f"disturbance must be a positive torque (N m), got {disturbance!r}")
-    levels = measurement_noise(objective.model, records, channels, noise)
+    levels = measurement_noise(records, objective.model, channels, noise)
     free = [c for c in channels if c not in dict(noise or {})]
-    levels, disturbance = fit_noise(objective.model, values, records, channels, levels, free,
+    levels, disturbance = fit_noise(records, objective.model, values, channels, levels, free,
                                     disturbance)
     fields = {name: getattr(objective, name) for name in objective.__dataclass_fields__}
     return PredictionObjective(**fields, sigma_y=jnp.asarray([levels[c] for c in channels]),

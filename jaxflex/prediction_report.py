@@ -53,9 +53,9 @@ class PredictionComparison:
 
 
 def compare_predictions(
+    records: Sequence[Record],
     model: Model,
     params: Mapping[str, float],
-    records: Sequence[Record],
     horizons: Sequence[float],
     *,
     fit_names: Sequence[str] = (),
@@ -70,7 +70,7 @@ def compare_predictions(
     """
     rows = []
     for record in records:
-        [prediction] = predict(model, params, record, horizons, channels=channels, noise=noise,
+        [prediction] = predict(record, model, params, horizons, channels=channels, noise=noise,
                                disturbance=disturbance)
         out = simulate(model, dict(params), record.input, record.dt)
         read = model.readings({k: np.float64(v) for k, v in params.items()},

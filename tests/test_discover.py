@@ -205,8 +205,8 @@ def test_hidden_effect_scores_among_the_contenders(name):
     the same derivative at their null (a small lag is a small delay), so their scores tie. The
     refits of the loop tell them apart (slow tests)."""
     records, _, _ = one(name, MODERATE[name], seed=3)
-    base = refit(Model(), START, records, noise=NOISE)
-    ranking = score_tests(base.model, base.params, records, noise=NOISE)
+    base = refit(records, Model(), START, noise=NOISE)
+    ranking = score_tests(records, base.model, base.params, noise=NOISE)
     contenders = [r.effect for r in ranking if r.significant][:3]
     assert name in contenders, [(r.effect, r.statistic) for r in ranking]
     hit = next(r for r in ranking if r.effect == name)
@@ -219,7 +219,7 @@ def test_hidden_effect_scores_among_the_contenders(name):
 
 def test_clean_records_have_no_significant_candidate():
     records, _, _ = hidden({}, seed=4)
-    ranking = score_tests(Model(), TRUTH, records, noise=NOISE)
+    ranking = score_tests(records, Model(), TRUTH, noise=NOISE)
     assert not any(r.significant for r in ranking), [(r.effect, r.p_value) for r in ranking]
     assert {r.effect for r in ranking} == {
         c.name for c in candidate_set(None, ["joint_angle", "tip_acceleration"])
@@ -228,24 +228,24 @@ def test_clean_records_have_no_significant_candidate():
 
 def test_given_noise_levels_are_used_and_the_rest_estimated(payload_case):
     records, _, _ = payload_case
-    fit = refit(Model(), START, records, noise={"joint_angle": 1e-3})
+    fit = refit(records, Model(), START, noise={"joint_angle": 1e-3})
     assert fit.noise["joint_angle"] == NoiseLevel(1e-3) and fit.noise["joint_angle"].describe() == (
         "given")
     assert fit.noise["tip_acceleration"].source == "estimated"
     assert fit.noise["tip_acceleration"].sigma == pytest.approx(ACCELEROMETER_SIGMA, rel=0.1)
     with pytest.raises(ValueError, match=r"^noise given for unknown channel 'torque'"):
-        refit(Model(), START, records, noise={"torque": 1.0})
+        refit(records, Model(), START, noise={"torque": 1.0})
 
 
 def test_add_effect_recovers_the_payload(payload_case):
     records, _, _ = payload_case
     base = DiscoveryFit(Model(), dict(START), math.nan, 6, 0, NOISE)
-    fit = add_effect(base, "payload", records)
+    fit = add_effect(records, base, "payload")
     assert fit.effects == ("payload",)
     assert fit.params["m_p"] == pytest.approx(0.03, rel=0.03)
     assert fit.params["E"] == pytest.approx(TRUTH["E"], rel=0.02)
     with pytest.raises(ValueError, match="already in the model"):
-        add_effect(fit, "payload", records)
+        add_effect(records, fit, "payload")
 
 
 # --- the loop ------------------------------------------------------------------------------------

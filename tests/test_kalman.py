@@ -100,7 +100,7 @@ def test_linear_filter_equals_a_numpy_kalman_filter():
     dt = 2e-3
     record = _record(model, params, 240, 0.004, seed=1, dt=dt)
     horizons = (1, 4, 15)
-    [run] = predict(model, params, record, [k * dt for k in horizons], noise=SIGMA,
+    [run] = predict(record, model, params, [k * dt for k in horizons], noise=SIGMA,
                     disturbance=0.004)
     y = np.stack([record.channel(c) for c in SIGMA])
     sigma_y = np.array(list(SIGMA.values()))
@@ -122,7 +122,7 @@ def test_innovations_are_white_on_records_of_the_model():
     model = Model(testbed=Testbed(n_elements=3))
     params = model.space.reference()
     record = _record(model, params, 1500, 0.01, seed=2)
-    [run] = predict(model, params, record, noise=SIGMA)
+    [run] = predict(record, model, params, noise=SIGMA)
     assert run.disturbance == pytest.approx(0.01, rel=0.2)
     for i, c in enumerate(run.channels):
         normalised = run.innovations[i] / np.sqrt(run.variance[i])
@@ -139,7 +139,7 @@ def test_bad_horizons_and_cross_sample_effects_are_refused():
                              (1e-4, "shorter than one sample"),
                              (0.06, "longer than record 'simulated'")):
         with pytest.raises(ValueError, match=message):
-            predict(model, params, record, [horizon], noise=SIGMA, disturbance=0.01)
+            predict(record, model, params, [horizon], noise=SIGMA, disturbance=0.01)
 
     class RunningMean(AbstractEffect):  # a sensor that averages its readings so far
         name = "running_mean"
@@ -150,4 +150,4 @@ def test_bad_horizons_and_cross_sample_effects_are_refused():
 
     smeared = model.with_effects(RunningMean())
     with pytest.raises(ValueError, match="effect running_mean changes channel 'joint_angle'"):
-        predict(smeared, params, record, noise=SIGMA, disturbance=0.01)
+        predict(record, smeared, params, noise=SIGMA, disturbance=0.01)

@@ -39,7 +39,7 @@ def test_prediction_error_residuals_are_the_filters_innovations():
     record = _record(model, truth, 120, 0.01, seed=5)
     objective = prediction_objective(build_objective(record, model), [record], truth,
                                      noise=SIGMA, disturbance=0.01)
-    [run] = predict(model, truth, record, noise=SIGMA, disturbance=0.01)
+    [run] = predict(record, model, truth, noise=SIGMA, disturbance=0.01)
     free = {n: truth[n] for n in objective.names}
     scale = np.asarray(objective.scale[0])[0][:, None]
     np.testing.assert_allclose(np.asarray(objective.residuals(free)),

@@ -70,7 +70,7 @@ def test_discover_scores_the_encoder_offset_first():
     records = make_records(ENCODER_OFF, BIASED, seed=3, duration=0.5)  # quantised, noisy
     noise = {"joint_angle": NoiseLevel.quantised(ENCODER_STEP),
              "tip_acceleration": NoiseLevel(ACCELEROMETER_SIGMA)}
-    ranking = score_tests(Model(), TRUTH, records, noise=noise,
+    ranking = score_tests(records, Model(), TRUTH, noise=noise,
                           candidates=["sensor_offset:joint_angle", "torque_offset", "gravity"])
     assert ranking[0].effect == "sensor_offset:joint_angle", [(r.effect, r.statistic)
                                                               for r in ranking]

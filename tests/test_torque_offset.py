@@ -65,8 +65,8 @@ def test_score_tests_name_the_offset_not_gravity():
     noise = {"joint_angle": NoiseLevel.quantised(ENCODER_STEP),
              "tip_acceleration": NoiseLevel(ACCELEROMETER_SIGMA)}
     start = {k: v * (1.03 if i % 2 else 0.97) for i, (k, v) in enumerate(truth.items())}
-    base = refit(Model(), start, records, noise=noise)
-    ranking = score_tests(base.model, base.params, records, noise=noise)
+    base = refit(records, Model(), start, noise=noise)
+    ranking = score_tests(records, base.model, base.params, noise=noise)
     assert ranking[0].effect == "torque_offset", [(r.effect, r.statistic) for r in ranking]
     assert ranking[0].significant and ranking[0].estimate["tau_0"] < 0
     gravity = next(r for r in ranking if r.effect == "gravity")

@@ -171,7 +171,7 @@ def run(args: argparse.Namespace) -> int:
         from jaxflex.prediction_report import compare_predictions, prediction_table
 
         predictions = compare_predictions(
-            model, params, ready, horizons, fit_names=comparison_fit_names(fit, names),
+            ready, model, params, horizons, fit_names=comparison_fit_names(fit, names),
             channels=comparison.channels, **filter_noise(fit))
         print(prediction_table(predictions), end="")
     with all_or_nothing():

@@ -38,9 +38,9 @@ def full_params(model: Model, params: Mapping[str, ArrayLike] | Any) -> dict[str
 
 
 def score_tests(
+    records: Dataset | Iterable[Record],
     model: Model,
     params: Mapping[str, ArrayLike],
-    records: Dataset | Iterable[Record],
     candidates: Iterable[str | AbstractEffect | Candidate] | None = None,
     *,
     alpha: float = ALPHA,
@@ -65,9 +65,9 @@ def score_tests(
 
 
 def refit(
+    records: Dataset | Iterable[Record],
     model: Model,
     params: Mapping[str, ArrayLike] | Any,
-    records: Dataset | Iterable[Record],
     *,
     noise: Noise | None = None,
     channels: Sequence[str] = CHANNELS,
@@ -86,9 +86,9 @@ def refit(
 
 
 def add_effect(
+    records: Dataset | Iterable[Record],
     fit: DiscoveryFit | Any,
     effect: str | AbstractEffect,
-    records: Dataset | Iterable[Record],
     *,
     model: Model | None = None,
     noise: Noise | None = None,
