@@ -34,8 +34,9 @@ from jaxflex._progress import stage
 from jaxflex.arm import MAX_ELEMENTS
 from jaxflex.diagnosis import Noise, noise_levels
 from jaxflex.evolve import STRATEGIES, get_strategy, run
+from jaxflex.initial import DEFAULT_MODES, INITIAL_STATES, initial_state_report, why_not_still
 from jaxflex.model import Model
-from jaxflex.objective import Objective, Records, build_objective, check_records
+from jaxflex.objective import Objective, Records, build_objective, check_records, record_tuple
 from jaxflex.refine import Refinement, uncertainty
 from jaxflex.refine import refine as refine_parameters
 from jaxflex.testbed import Testbed
@@ -121,8 +122,10 @@ class Fit:
     ``residual_checks`` says whether the residuals are white and whether the nominal intervals
     are therefore only conditional on the model (:attr:`model_conditional`; see
     :func:`jaxflex.refine.uncertainty`). ``unidentifiable`` names parameters whose interval is
-    infinite or spans decades: not identifiable from these records. Fit files written before
-    these fields existed load with them empty.
+    infinite or spans decades: not identifiable from these records. ``initial_state`` says
+    where the records started (:mod:`jaxflex.initial`); ``initial_states`` and
+    ``initial_state_intervals`` hold each record's coordinates and intervals (empty at rest).
+    Fit files written before these fields existed load with them empty.
     """
 
     params: dict[str, float]
@@ -152,6 +155,10 @@ class Fit:
     robust_intervals: dict[str, tuple[float, float]] = field(default_factory=dict)
     robust_std: dict[str, float] = field(default_factory=dict)
     residual_checks: dict[str, Any] = field(default_factory=dict)
+    initial_state: str = "rest"
+    initial_states: dict[str, dict[str, float]] = field(default_factory=dict)
+    initial_state_intervals: dict[str, dict[str, tuple[float, float]]] = field(
+        default_factory=dict)
 
     # --- use -------------------------------------------------------------------------------
     def model(self) -> Model:
@@ -296,6 +303,12 @@ class Fit:
                               for k, v in data.get("robust_intervals", {}).items()},
             robust_std={k: _float(v) for k, v in data.get("robust_std", {}).items()},
             residual_checks=dict(data.get("residual_checks", {})),
+            initial_state=str(data.get("initial_state", "rest")),
+            initial_states={r: {k: _float(v) for k, v in z.items()}
+                            for r, z in data.get("initial_states", {}).items()},
+            initial_state_intervals={
+                r: {k: (_float(v[0]), _float(v[1])) for k, v in z.items()}
+                for r, z in data.get("initial_state_intervals", {}).items()},
         )
 
     @classmethod
@@ -474,8 +487,12 @@ FIT_SCHEMA = _record({
     "robust_intervals": _object_of(_list_of(_number_field(), length=2)),
     "robust_std": _object_of(_number_field()),
     "residual_checks": _typed(dict, "an object"),
+    "initial_state": _one_of(*INITIAL_STATES),
+    "initial_states": _object_of(_object_of(_number_field())),
+    "initial_state_intervals": _object_of(_object_of(_list_of(_number_field(), length=2))),
 }, optional=("level", "identifiability", "provenance", "unidentifiable", "robust_intervals",
-             "robust_std", "residual_checks"))
+             "robust_std", "residual_checks", "initial_state", "initial_states",
+             "initial_state_intervals"))
 """The fit file, field by field: each entry checks one field and names it when it is wrong."""
 
 
@@ -603,6 +620,8 @@ def identify(
     level: float = 0.95,
     noise: Noise | None = None,
     tol: float | None = None,
+    initial_state: str = "rest",
+    initial_modes: int = DEFAULT_MODES,
 ) -> Fit:
     """Identify the parameters of ``model`` (default: the reference testbed) from ``records``.
 
@@ -620,13 +639,16 @@ def identify(
     Levenberg–Marquardt from the ``refine_starts`` best candidates; ``intervals`` computes the
     Gauss–Newton uncertainty at ``level``. ``progress`` reports the stages (search, refinement,
     intervals) on stderr: a bar on a terminal or in Jupyter, else a line per stage.
+    ``initial_state`` (``"rest"``, ``"estimate"``, ``"periodic"``, with ``initial_modes``
+    modes) says where each record starts (:mod:`jaxflex.initial`); a record that does not
+    start at rest fitted from rest gets a warning.
     """
     t_start = time.perf_counter()
     check_records(records, "identify")
     method = check_method(method)
     objective = build_objective(
         records, model, weights=weights, channels=channels, fixed=fixed, bounds=bounds,
-        noise=noise,
+        noise=noise, initial_state=initial_state, initial_modes=initial_modes,
     )
     overrides = dict(strategy_options or {})
     if population is not None:
@@ -667,6 +689,11 @@ def identify(
             linearization = refinement.linearization  # the intervals reuse its Jacobian
 
     warnings: list[str] = []
+    if objective.initial_state == "rest":
+        for record in record_tuple(records):
+            moved = why_not_still(record, objective.model, objective.channels)
+            if moved is not None:
+                warnings.append(moved)
     if not math.isfinite(cost):
         warnings.append("no candidate gave a finite simulation: the fit is meaningless")
     if refinement is not None and refinement.result != "successful":
@@ -683,6 +710,10 @@ def identify(
         timing["uncertainty"] = time.perf_counter() - t0
         stage(f"intervals: {level:.0%} ({timing['uncertainty']:.1f} s)", progress)
         warnings += unc.warnings
+    states, state_intervals = {}, {}
+    if objective.initial_state != "rest" and math.isfinite(cost):
+        states, state_intervals = initial_state_report(
+            objective, estimate, None if unc is None else unc.noise, level)
     timing["total"] = time.perf_counter() - t_start
 
     history_x = np.asarray(objective.space.to_vector(objective.from_unit(evolution.history_best_x)))
@@ -724,6 +755,8 @@ def identify(
             "log_scale": {s.name: s.log_scale for s in objective.specs},
             "seeded": 0 if seeds is None else int(seeds.shape[0]),
             "dt": objective.dt,
+            "initial_state": objective.initial_state,
+            "initial_modes": objective.initial_modes,
         },
         timing=timing,
         record_names=objective.record_names,
@@ -742,6 +775,9 @@ def identify(
         robust_std={} if unc is None or unc.robust_std is None
         else dict(zip(unc.names, map(float, unc.robust_std), strict=True)),
         residual_checks={} if unc is None else _jsonable_checks(unc.residual_checks),
+        initial_state=objective.initial_state,
+        initial_states=states,
+        initial_state_intervals=state_intervals,
     )
 
 

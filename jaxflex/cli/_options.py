@@ -94,6 +94,33 @@ def add_fit_options(p: argparse.ArgumentParser) -> None:
     for o in PAIR_OPTIONS:
         p.add_argument(o.option, dest=f"pairs_{o.keyword}", action="append", default=[],
                        metavar=o.metavar, help=o.help)
+    add_initial_state_options(p)
+
+
+def add_initial_state_options(p: argparse.ArgumentParser, held_out: bool = False) -> None:
+    """``--initial-state`` and ``--initial-modes``: where each record's simulation starts
+    (:mod:`jaxflex.initial`)."""
+    from jaxflex.initial import DEFAULT_MODES, INITIAL_STATES
+
+    which = "held-out records (fitted ones start where the fit found them)" if held_out else (
+        "records")
+    p.add_argument("--initial-state", choices=INITIAL_STATES, default="rest",
+                   help=f"where the {which} start: at rest, at a state estimated with the "
+                        "parameters, or in the periodic steady state of a periodic input "
+                        "(default: %(default)s)")
+    p.add_argument("--initial-modes", type=_whole, default=DEFAULT_MODES, metavar="K",
+                   help="flexible modes whose coordinates an estimated or periodic start sets, "
+                        "the lowest ones (default: %(default)s)")
+
+
+def _whole(text: str) -> int:
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not a whole number") from None
+    if value < 0:
+        raise argparse.ArgumentTypeError(f"{text!r} must be >= 0")
+    return value
 
 
 def effects_from(names: list[str], option: str = "--effect") -> tuple:
@@ -136,6 +163,10 @@ def fit_keywords(args: argparse.Namespace, function: Callable) -> dict[str, Any]
     for o in PAIR_OPTIONS:
         if o.keyword in keywords and o.keyword not in accepted:
             raise UsageError(f"{o.option} is not supported by this command yet")
+    if getattr(args, "initial_state", "rest") != "rest":
+        if "initial_state" not in accepted:
+            raise UsageError("--initial-state is not supported by this command yet")
+        keywords |= {"initial_state": args.initial_state, "initial_modes": args.initial_modes}
     return {k: v for k, v in keywords.items() if k in accepted}
 
 
@@ -159,6 +190,7 @@ def add_record_options(p: argparse.ArgumentParser) -> None:
 
 
 __all__ = [
-    "PAIR_OPTIONS", "PairOption", "add_fit_options", "add_quiet_option", "add_record_options",
+    "PAIR_OPTIONS", "PairOption", "add_fit_options", "add_initial_state_options",
+    "add_quiet_option", "add_record_options",
     "effects_from", "finite_number", "fit_keywords", "pair_values",
 ]
