@@ -12,10 +12,16 @@ import pytest
 from reference_solver import designed_torque, logged_mid_run
 
 from jaxflex import Model, identify
-from jaxflex.cli import main
+from jaxflex.cli import _options, main
 from jaxflex.data import Record, save_record
 from jaxflex.identification import Fit
-from jaxflex.initial import input_period, record_states, why_not_still
+from jaxflex.initial import (
+    DEFAULT_MODES,
+    INITIAL_STATES,
+    input_period,
+    record_states,
+    why_not_still,
+)
 from jaxflex.synthetic import add_measurement_noise, make_records, simulated_record
 
 MODEL = Model()
@@ -72,6 +78,11 @@ def test_a_record_too_short_for_an_estimate_is_refused():
         identify([record], MODEL, initial_state="estimate", generations=1, population=4)
     with pytest.raises(ValueError, match="initial_state must be one of rest, estimate, periodic"):
         identify([record], MODEL, initial_state="moving")
+
+
+def test_the_command_line_offers_the_library_s_initial_states():
+    assert _options.INITIAL_STATES == INITIAL_STATES
+    assert _options.INITIAL_MODES == DEFAULT_MODES
 
 
 def test_the_cli_refuses_an_initial_state_that_cannot_apply(tmp_path, capsys):
@@ -136,6 +147,26 @@ def test_parameters_and_state_of_a_record_logged_mid_run_are_recovered(mid_run):
     wrong = identify([record], MODEL, generations=2, population=8, refine=False,
                      intervals=False)
     assert any(w.startswith("record 'mid' does not start at rest") for w in wrong.warnings)
+
+
+@pytest.mark.slow  # about 1.5 min on the 2-core machine: a 3 s Radau run, the periodic solve
+def test_the_periodic_state_at_the_truth_is_the_reference_steady_state():
+    """A piecewise-constant input of period 0.25 s, run from rest for 3 s (the transient gone:
+    alpha and beta at their upper bounds), logged over its last two periods: the periodic
+    state is Radau's, up to the stick-slip of a joint that barely moves."""
+    truth = TRUTH | {"alpha": 4.0, "beta": 2e-4}
+    levels = np.random.default_rng(1).standard_normal(10)
+    period = np.repeat(0.35 * (levels - levels.mean()) / np.max(np.abs(levels)), 25)
+    torque = np.tile(period, 12)
+    outputs, (_, velocity, modal, modal_velocity) = logged_mid_run(MODEL, truth, torque, DT,
+                                                                   2500)
+    record = _record("steady", outputs, torque[2500:], seed=None)
+    assert input_period(record) == 250
+    z = record_states(MODEL, truth, [record], None, "periodic")["steady"]
+    assert z[0] == pytest.approx(outputs[0][0], abs=2e-3)  # the angle, by least squares
+    assert z[1] == pytest.approx(velocity, rel=0.05)
+    np.testing.assert_allclose(z[2:4], modal[:2], rtol=0.05)
+    np.testing.assert_allclose(z[4:6], modal_velocity[:2], rtol=0.05)
 
 
 def test_a_fit_file_keeps_the_initial_states(tmp_path):

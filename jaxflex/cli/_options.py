@@ -19,6 +19,11 @@ from typing import Any, NamedTuple
 
 from jaxflex.cli import UsageError
 
+INITIAL_STATES = ("rest", "estimate", "periodic")
+"""``--initial-state``'s choices: :data:`jaxflex.initial.INITIAL_STATES` (named here, so that
+``--help`` loads no JAX)."""
+INITIAL_MODES = 2
+"""``--initial-modes``'s default: :data:`jaxflex.initial.DEFAULT_MODES`."""
 MAX_BOUND_DECADES = 12
 """Widest ``--bound`` (upper/lower) accepted: beyond it candidates overflow the simulation."""
 
@@ -100,15 +105,13 @@ def add_fit_options(p: argparse.ArgumentParser) -> None:
 def add_initial_state_options(p: argparse.ArgumentParser, held_out: bool = False) -> None:
     """``--initial-state`` and ``--initial-modes``: where each record's simulation starts
     (:mod:`jaxflex.initial`)."""
-    from jaxflex.initial import DEFAULT_MODES, INITIAL_STATES
-
     which = "held-out records (fitted ones start where the fit found them)" if held_out else (
         "records")
     p.add_argument("--initial-state", choices=INITIAL_STATES, default="rest",
                    help=f"where the {which} start: at rest, at a state estimated with the "
                         "parameters, or in the periodic steady state of a periodic input "
                         "(default: %(default)s)")
-    p.add_argument("--initial-modes", type=_whole, default=DEFAULT_MODES, metavar="K",
+    p.add_argument("--initial-modes", type=_whole, default=INITIAL_MODES, metavar="K",
                    help="flexible modes whose coordinates an estimated or periodic start sets, "
                         "the lowest ones (default: %(default)s)")
 
