@@ -29,12 +29,12 @@ from typing import Any
 import numpy as np
 from jaxtyping import ArrayLike
 
+from jaxflex import initial as starts
 from jaxflex._io import provenance, to_jsonable, write_json
 from jaxflex._progress import stage
 from jaxflex.arm import MAX_ELEMENTS
 from jaxflex.diagnosis import Noise, noise_levels
 from jaxflex.evolve import STRATEGIES, get_strategy, run
-from jaxflex.initial import DEFAULT_MODES, INITIAL_STATES, initial_state_report, why_not_still
 from jaxflex.model import Model
 from jaxflex.objective import Objective, Records, build_objective, check_records, record_tuple
 from jaxflex.refine import Refinement, uncertainty
@@ -122,10 +122,10 @@ class Fit:
     ``residual_checks`` says whether the residuals are white and whether the nominal intervals
     are therefore only conditional on the model (:attr:`model_conditional`; see
     :func:`jaxflex.refine.uncertainty`). ``unidentifiable`` names parameters whose interval is
-    infinite or spans decades: not identifiable from these records. ``initial_state`` says
-    where the records started (:mod:`jaxflex.initial`); ``initial_states`` and
-    ``initial_state_intervals`` hold each record's coordinates and intervals (empty at rest).
-    Fit files written before these fields existed load with them empty.
+    infinite or spans decades: not identifiable from these records. ``initial_state`` and, by
+    record, ``initial_states`` and their ``initial_state_intervals``: where the records started
+    (:mod:`jaxflex.initial`; empty at rest). Fit files written before these fields existed load
+    with them empty.
     """
 
     params: dict[str, float]
@@ -157,8 +157,7 @@ class Fit:
     residual_checks: dict[str, Any] = field(default_factory=dict)
     initial_state: str = "rest"
     initial_states: dict[str, dict[str, float]] = field(default_factory=dict)
-    initial_state_intervals: dict[str, dict[str, tuple[float, float]]] = field(
-        default_factory=dict)
+    initial_state_intervals: dict[str, dict[str, tuple[float, float]]] = field(default_factory=dict)
 
     # --- use -------------------------------------------------------------------------------
     def model(self) -> Model:
@@ -227,6 +226,7 @@ class Fit:
                 f"refinement: {r.result}, {r.steps} steps, cost {r.cost_start:.6g} -> "
                 f"{r.cost_end:.6g} ({'accepted' if r.accepted else 'rejected'})"
             )
+        lines += starts.state_lines(self.initial_states, self.initial_state_intervals)
         lines += [f"warning: {w}" for w in self.warnings]
         return "\n".join(lines) + "\n"
 
@@ -487,7 +487,7 @@ FIT_SCHEMA = _record({
     "robust_intervals": _object_of(_list_of(_number_field(), length=2)),
     "robust_std": _object_of(_number_field()),
     "residual_checks": _typed(dict, "an object"),
-    "initial_state": _one_of(*INITIAL_STATES),
+    "initial_state": _one_of(*starts.INITIAL_STATES),
     "initial_states": _object_of(_object_of(_number_field())),
     "initial_state_intervals": _object_of(_object_of(_list_of(_number_field(), length=2))),
 }, optional=("level", "identifiability", "provenance", "unidentifiable", "robust_intervals",
@@ -621,7 +621,7 @@ def identify(
     noise: Noise | None = None,
     tol: float | None = None,
     initial_state: str = "rest",
-    initial_modes: int = DEFAULT_MODES,
+    initial_modes: int = starts.DEFAULT_MODES,
 ) -> Fit:
     """Identify the parameters of ``model`` (default: the reference testbed) from ``records``.
 
@@ -639,9 +639,8 @@ def identify(
     Levenberg–Marquardt from the ``refine_starts`` best candidates; ``intervals`` computes the
     Gauss–Newton uncertainty at ``level``. ``progress`` reports the stages (search, refinement,
     intervals) on stderr: a bar on a terminal or in Jupyter, else a line per stage.
-    ``initial_state`` (``"rest"``, ``"estimate"``, ``"periodic"``, with ``initial_modes``
-    modes) says where each record starts (:mod:`jaxflex.initial`); a record that does not
-    start at rest fitted from rest gets a warning.
+    ``initial_state`` (``"rest"``, ``"estimate"``, ``"periodic"``; ``initial_modes`` modes)
+    says where records start (:mod:`jaxflex.initial`); one fitted from rest that moved warns.
     """
     t_start = time.perf_counter()
     check_records(records, "identify")
@@ -689,11 +688,9 @@ def identify(
             linearization = refinement.linearization  # the intervals reuse its Jacobian
 
     warnings: list[str] = []
-    if objective.initial_state == "rest":
-        for record in record_tuple(records):
-            moved = why_not_still(record, objective.model, objective.channels)
-            if moved is not None:
-                warnings.append(moved)
+    if objective.initial_state == "rest":  # a record that moved at its start is named
+        warnings += [moved for r in record_tuple(records)
+                     if (moved := starts.why_not_still(r, objective.model, objective.channels))]
     if not math.isfinite(cost):
         warnings.append("no candidate gave a finite simulation: the fit is meaningless")
     if refinement is not None and refinement.result != "successful":
@@ -710,10 +707,8 @@ def identify(
         timing["uncertainty"] = time.perf_counter() - t0
         stage(f"intervals: {level:.0%} ({timing['uncertainty']:.1f} s)", progress)
         warnings += unc.warnings
-    states, state_intervals = {}, {}
-    if objective.initial_state != "rest" and math.isfinite(cost):
-        states, state_intervals = initial_state_report(
-            objective, estimate, None if unc is None else unc.noise, level)
+    states, state_intervals = starts.initial_state_report(
+        objective, estimate, None if unc is None else unc.noise, level, math.isfinite(cost))
     timing["total"] = time.perf_counter() - t_start
 
     history_x = np.asarray(objective.space.to_vector(objective.from_unit(evolution.history_best_x)))

@@ -234,11 +234,17 @@ def _value_and_jacobian(fn: Callable[[Array], Array], z: Array) -> tuple[Array, 
 def _gauss_newton_step(fn: Callable[[Array], Array], z: Array) -> Array:
     """One Gauss–Newton step on ``|fn(z)|²`` (Newton for a square system), columns scaled."""
     r, jac = _value_and_jacobian(fn, z)
+    return z - _least_squares(jac, r)
+
+
+def _least_squares(jac: Array, r: Array) -> Array:
+    """``x`` minimising ``|jac·x − r|²``, columns scaled to unit norm, with the relative
+    :data:`LEVENBERG` damping (a zero column gets zero)."""
     norms = jnp.sqrt(jnp.sum(jac**2, axis=0))
     safe = jnp.where(norms > 0.0, norms, 1.0)
     scaled = jac / safe
-    normal = scaled.T @ scaled + LEVENBERG * jnp.eye(z.shape[0], dtype=z.dtype)
-    return z - jnp.linalg.solve(normal, scaled.T @ r) / safe
+    normal = scaled.T @ scaled + LEVENBERG * jnp.eye(jac.shape[1], dtype=jac.dtype)
+    return jnp.linalg.solve(normal, scaled.T @ r) / safe
 
 
 def gauss_newton(fn: Callable[[Array, Params], Array], z: Array, params: Params,
@@ -268,11 +274,7 @@ def rigid_guess(residual: Callable[[Array, Params], Array], params: Params, mode
     t = jnp.tile(time, channels)
     early = jnp.tile(time <= time[0] + window, channels)
     basis = jnp.stack([column, column * t, 0.5 * column * t**2], axis=1) * early[:, None]
-    norms = jnp.sqrt(jnp.sum(basis**2, axis=0))
-    safe = jnp.where(norms > 0.0, norms, 1.0)
-    scaled = basis / safe
-    normal = scaled.T @ scaled + LEVENBERG * jnp.eye(3)
-    fit = -jnp.linalg.solve(normal, scaled.T @ (r * early)) / safe
+    fit = -_least_squares(basis, r * early)
     return zero.at[0].set(fit[0]).at[1].set(fit[1])
 
 
@@ -348,11 +350,14 @@ def simulate_record(model: Model, params: Mapping[str, float], record: Record,
 
 def initial_state_report(
     objective: Objective, estimate: Mapping[str, float], noise: Mapping[str, float] | None,
-    level: float,
+    level: float, finite: bool = True,
 ) -> tuple[dict[str, dict[str, float]], dict[str, dict[str, tuple[float, float]]]]:
     """Each record's initial coordinates at ``estimate``, by name, and their ``level``
     intervals (none without ``noise``): from the Jacobian in the free parameters and every
-    record's coordinates together, so that they carry the parameters' uncertainty too."""
+    record's coordinates together, so that they carry the parameters' uncertainty too. Empty
+    at rest, or where the fit is not ``finite``."""
+    if objective.initial_state == "rest" or not finite:
+        return {}, {}
     free = {n: float(estimate[n]) for n in objective.names}
     states = eqx.filter_jit(objective.initial_states)(free)
     names = coordinate_names(objective.initial_modes)
@@ -392,8 +397,22 @@ def initial_state_report(
     return values, intervals
 
 
+def state_lines(states: Mapping[str, Mapping[str, float]],
+                intervals: Mapping[str, Mapping[str, tuple[float, float]]]) -> list[str]:
+    """One line per record: its initial coordinates, each with its interval's half-width."""
+    lines = []
+    for record, z in states.items():
+        within = intervals.get(record, {})
+        units = dict(zip(z, coordinate_units((len(z) - 2) // 2), strict=True))
+        parts = [f"{n} {v:.5g}" + (f" ±{0.5 * (within[n][1] - within[n][0]):.2g}"
+                                   if n in within else "") + f" {units[n]}"
+                 for n, v in z.items()]
+        lines.append(f"initial state of {record!r}: " + ", ".join(parts))
+    return lines
+
+
 __all__ = ["DEFAULT_MODES", "INITIAL_STATES", "check_initial_modes", "check_initial_state",
            "check_record_length", "coordinate_names", "coordinate_units", "estimate_state",
            "gauss_newton", "initial_state_report", "input_period", "periodic_state",
            "record_states", "simulate_from", "simulate_record", "start_state",
-           "why_not_still"]
+           "state_lines", "why_not_still"]
