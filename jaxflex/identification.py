@@ -29,7 +29,7 @@ from typing import Any
 import numpy as np
 from jaxtyping import ArrayLike
 
-from jaxflex import initial as starts
+from jaxflex import initial as _initial
 from jaxflex._io import provenance, to_jsonable, write_json
 from jaxflex._progress import stage
 from jaxflex.arm import MAX_ELEMENTS
@@ -226,7 +226,7 @@ class Fit:
                 f"refinement: {r.result}, {r.steps} steps, cost {r.cost_start:.6g} -> "
                 f"{r.cost_end:.6g} ({'accepted' if r.accepted else 'rejected'})"
             )
-        lines += starts.state_lines(self.initial_states, self.initial_state_intervals)
+        lines += _initial.state_lines(self.initial_states, self.initial_state_intervals)
         lines += [f"warning: {w}" for w in self.warnings]
         return "\n".join(lines) + "\n"
 
@@ -487,7 +487,7 @@ FIT_SCHEMA = _record({
     "robust_intervals": _object_of(_list_of(_number_field(), length=2)),
     "robust_std": _object_of(_number_field()),
     "residual_checks": _typed(dict, "an object"),
-    "initial_state": _one_of(*starts.INITIAL_STATES),
+    "initial_state": _one_of(*_initial.INITIAL_STATES),
     "initial_states": _object_of(_object_of(_number_field())),
     "initial_state_intervals": _object_of(_object_of(_list_of(_number_field(), length=2))),
 }, optional=("level", "identifiability", "provenance", "unidentifiable", "robust_intervals",
@@ -621,7 +621,7 @@ def identify(
     noise: Noise | None = None,
     tol: float | None = None,
     initial_state: str = "rest",
-    initial_modes: int = starts.DEFAULT_MODES,
+    initial_modes: int = _initial.DEFAULT_MODES,
 ) -> Fit:
     """Identify the parameters of ``model`` (default: the reference testbed) from ``records``.
 
@@ -690,7 +690,7 @@ def identify(
     warnings: list[str] = []
     if objective.initial_state == "rest":  # a record that moved at its start is named
         warnings += [moved for r in record_tuple(records)
-                     if (moved := starts.why_not_still(r, objective.model, objective.channels))]
+                     if (moved := _initial.why_not_still(r, objective.model, objective.channels))]
     if not math.isfinite(cost):
         warnings.append("no candidate gave a finite simulation: the fit is meaningless")
     if refinement is not None and refinement.result != "successful":
@@ -707,7 +707,7 @@ def identify(
         timing["uncertainty"] = time.perf_counter() - t0
         stage(f"intervals: {level:.0%} ({timing['uncertainty']:.1f} s)", progress)
         warnings += unc.warnings
-    states, state_intervals = starts.initial_state_report(
+    states, state_intervals = _initial.initial_state_report(
         objective, estimate, None if unc is None else unc.noise, level, math.isfinite(cost))
     timing["total"] = time.perf_counter() - t_start
 
