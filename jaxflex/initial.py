@@ -14,9 +14,11 @@ Three options (:data:`INITIAL_STATES`):
 
 * ``rest``: ``z = 0``, the simulator's default;
 * ``estimate``: for given parameters, ``z`` minimises the record's own residuals, by
-  Gauss–Newton (:func:`estimate_state`). The state enters the modal step linearly (only the
-  friction bends it), so a few steps from rest reach it and its Jacobian is ``2 + 2k`` forward
-  columns. The objective stays a function of the parameters alone (variable projection);
+  Gauss–Newton (:func:`estimate_state`) from the angle and velocity its first samples show.
+  The state enters the modal step linearly (only the friction bends it: at a stick it hides
+  the velocity, hence that start), so a few steps reach it, each ``2 + 2k`` forward columns.
+  The objective stays a function of the parameters alone (variable projection), and the
+  evolutionary search and the refinement run on it unchanged;
 * ``periodic``: the cyclic steady state of a periodic input, ``x(P) = x(0)`` over the input's
   period ``P`` (:func:`input_period`) for the velocity and the modes, by Newton; the angle, a
   free rigid-body coordinate, then by least squares (:func:`periodic_state`).
