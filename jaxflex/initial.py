@@ -159,7 +159,7 @@ def check_record_length(record: Record, model: Model, modes: int, option: str) -
             f"record {record.name!r} ({duration:.4g} s) is too short for initial_state "
             f"{option!r} with {modes} modes: it must span one period of the lowest mode "
             f"({period:.4g} s at the rig's reference parameters); give a longer record or "
-            "initial_modes=0"
+            "set 0 initial modes"
         )
 
 

@@ -95,6 +95,12 @@ def test_the_cli_refuses_an_initial_state_that_cannot_apply(tmp_path, capsys):
     err = capsys.readouterr().err.strip().splitlines()
     assert status == 2
     assert len(err) == 1 and "record 'step': initial_state 'periodic' needs a periodic" in err[0]
+    short = save_record(record.trim(0.05, 0.13), tmp_path / "short.csv")
+    status = main(["identify", str(short), "--initial-state", "estimate", "--generations", "1",
+                   "--population", "4", "--out", str(tmp_path / "fit.json"), "--quiet"])
+    err = capsys.readouterr().err.strip().splitlines()
+    assert status == 2
+    assert len(err) == 1 and "record 'short' (0.081 s) is too short for initial_state " in err[0]
     assert not (tmp_path / "fit.json").exists()
 
 
