@@ -173,7 +173,8 @@ def why_not_still(record: Record, model: Model, channels: tuple[str, ...]) -> st
 
     Only channels that read zero and stand still at rest count (angles, velocities,
     deflections, strains; not accelerations or torques, which the input moves at once): a
-    quadratic over the first :data:`GUESS_WINDOW` seconds gives each one's start and slope.
+    quadratic over the first :data:`GUESS_WINDOW` seconds gives each one's start (unless the
+    model reads the channel with an offset of its own) and slope.
     """
     from jaxflex.sensors import Accelerometer
 
@@ -192,6 +193,8 @@ def why_not_still(record: Record, model: Model, channels: tuple[str, ...]) -> st
             continue
         start, slope = np.polynomial.polynomial.polyfit(t[early], y[early], 2)[:2]
         window = float(t[early][-1])
+        if f"sensor_offset:{c}" in model.effect_names:
+            start = 0.0  # the model reads it off zero at rest: only its slope counts
         if abs(start) > STILL_FRACTION * span or abs(slope) * window > STILL_FRACTION * span:
             moved.append(f"{c} starts at {start:.4g}, changing at {slope:.4g}/s")
     if not moved:
