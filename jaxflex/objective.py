@@ -19,6 +19,10 @@ the refinement work in (:mod:`jaxflex.parameters`). Only the free parameters are
 
 Records of equal length are stacked and simulated by one ``vmap``; groups of different length
 are simulated one after another inside the same traced function.
+
+Records start at rest, or, for records logged in motion, from an initial state that is a
+function of the parameters (estimated from each record's own residuals, or its periodic steady
+state: :mod:`jaxflex.initial`), so the cost stays a function of the parameters alone.
 """
 
 from __future__ import annotations
