@@ -14,7 +14,7 @@ from reference_solver import designed_torque, logged_mid_run
 from jaxflex import Model, identify
 from jaxflex.cli import _options, main
 from jaxflex.comparison import compare
-from jaxflex.data import Record, save_record
+from jaxflex.data import Record, load_record, save_record
 from jaxflex.identification import Fit
 from jaxflex.initial import (
     DEFAULT_MODES,
@@ -140,12 +140,16 @@ def test_the_estimated_state_at_the_truth_is_the_reference_state(mid_run):
     assert min(at_rest.values()) > 20.0, at_rest
 
 
-@pytest.mark.slow  # about 1.5 min on the 2-core machine: three DE 10 x 16 fits, refinement
+@pytest.mark.slow  # about 2 min on the 2-core machine: three DE 10 x 16 fits, refinement
 def test_parameters_and_state_of_a_record_logged_mid_run_are_recovered(mid_run, tmp_path):
     torque, outputs, state = mid_run
-    record = _record("mid", outputs, torque, seed=1)
-    fit = identify([record], MODEL, initial_state="estimate", initial_modes=3, generations=10,
-                   population=16)
+    save_record(_record("mid", outputs, torque, seed=1), tmp_path / "mid.csv")
+    record = load_record(tmp_path / "mid.csv")  # as logged: 9 significant digits
+    assert main(["identify", str(tmp_path / "mid.csv"), "--initial-state", "estimate",
+                 "--initial-modes", "3", "--generations", "10", "--population", "16",
+                 "--out", str(tmp_path / "fit.json"), "--quiet"]) == 0
+    fit = Fit.from_json(tmp_path / "fit.json")
+    assert fit.initial_state == "estimate" and fit.settings["initial_modes"] == 3
     assert not any("does not start at rest" in w for w in fit.warnings)
     for name in fit.names:
         lo, hi = fit.intervals[name]
@@ -165,8 +169,6 @@ def test_parameters_and_state_of_a_record_logged_mid_run_are_recovered(mid_run, 
         lo, hi = fit.intervals[name]
         assert lo <= at_rest.params[name] <= hi, (name, at_rest.params[name], lo, hi)
     # validate starts the fitted record where the fit found it
-    fit.to_json(tmp_path / "fit.json")
-    save_record(record, tmp_path / "mid.csv")
     assert main(["validate", str(tmp_path / "mid.csv"), "--fit", str(tmp_path / "fit.json"),
                  "--t-end", "0.6", "--json", str(tmp_path / "scores.json"), "--quiet"]) == 0
     scores = json.loads((tmp_path / "scores.json").read_text())["records"][0]["nrmse"]
