@@ -36,6 +36,7 @@ from jaxtyping import ArrayLike, Bool, Complex, Float
 from jaxflex._io import provenance, to_jsonable
 from jaxflex.data import KNOWN_UNITS, OUTPUT_COLUMNS, Dataset, Record
 from jaxflex.diagnosis.frf import LINK_OUTPUTS
+from jaxflex.initial import DEFAULT_MODES, check_initial_state, record_states, simulate_record
 from jaxflex.metrics import frf_nrmse, h1_frf, nrmse, relative_error, spectral_window
 from jaxflex.modal import free_hub_modes
 from jaxflex.model import Model
@@ -278,6 +279,9 @@ def compare(
     encoder_counts: int | None = None,
     accel_sigma: float | None = None,
     channels: Sequence[str] | None = None,
+    initial_states: Mapping[str, Sequence[float]] | None = None,
+    initial_state: str = "rest",
+    initial_modes: int = DEFAULT_MODES,
 ) -> Comparison:
     """Simulate ``model`` at ``params`` under each record's input and compute every metric.
 
@@ -292,6 +296,11 @@ def compare(
     sensor noise (``encoder_counts`` per revolution, accelerometer ``accel_sigma`` in m/s²) when
     it is known, e.g. for synthetic records, to report the noise floor next to each metric; a
     rig's sensors state their own (their resolution and noise).
+
+    A record named in ``initial_states`` (a fit's :attr:`~jaxflex.identification.Fit.
+    initial_states`) starts from its coordinates (:mod:`jaxflex.initial`); the others start at
+    rest, or, with ``initial_state`` ``"estimate"`` or ``"periodic"``, from their own state
+    at ``params`` (``initial_modes`` modes).
     """
     dataset = record_tuple(records)  # one sampling rate or several
     names = [r.name for r in dataset]
@@ -319,9 +328,19 @@ def compare(
     sigma = {s.channel: s.noise_std for s in model.sensors
              if s.noise_std > 0 and s.channel in channels}
 
+    states = {k: np.asarray(v, dtype=float) for k, v in (initial_states or {}).items()}
+    check_initial_state(initial_state)
+    if initial_state != "rest":
+        for record in dataset:
+            if record.name not in states:
+                states |= record_states(model, values, [record], channels, initial_state,
+                                        initial_modes)
     rows, simulated = [], []
     for record in dataset:
-        out = calibrated(model, values, simulate(model, values, record.input, dt=record.dt))
+        if record.name in states:
+            out = simulate_record(model, values, record, states[record.name])
+        else:
+            out = calibrated(model, values, simulate(model, values, record.input, dt=record.dt))
         role = "fit" if record.name in fit_names else "held-out"
         row = compare_record(record, out, role, t_end, settings, encoder_counts, accel_sigma,
                              channels, link)

@@ -5,8 +5,8 @@ of the rig's sensor channels in their own units, and time that may start anywher
 :func:`model_record` cuts the requested window, checks that the arm is at rest at its start (the
 simulation starts from rest) and re-zeroes each sensor channel at rest, which removes the
 sensors' offsets: the model's readings are taken relative to rest
-(:meth:`~jaxflex.sensors.Sensor.reading`); a sensor with ``rezero=False`` keeps the record's zero,
-less its stated offset. The input keeps its own name and unit; the rig's drive
+(:meth:`~jaxflex.sensors.AbstractSensor.reading`); a sensor with ``rezero=False`` keeps the
+record's zero, less its stated offset. The input keeps its own name and unit; the rig's drive
 turns it into hub torque. A link reading no elastic link gives in its unit (a deflection longer
 than the link, a strain above 1 %, a deflection angle above 1 rad) is refused as logged in
 another unit. A rig without sensors reads records of the simulator's outputs (the
@@ -23,12 +23,19 @@ from collections.abc import Mapping, Sequence
 import numpy as np
 
 from jaxflex.data import Record
-from jaxflex.diagnosis import NoiseLevel
 from jaxflex.metrics import nrmse
 from jaxflex.model import Model
+from jaxflex.noise import NoiseLevel
 from jaxflex.objective import check_inputs, fitted_channels
 from jaxflex.rest import REST_SPAN, rest_bands, why_not_at_rest
-from jaxflex.sensors import AbstractSensor, DeflectionSensor, StrainGauge, calibrated, readings
+from jaxflex.sensors import (
+    AbstractSensor,
+    DeflectionSensor,
+    Encoder,
+    StrainGauge,
+    calibrated,
+    readings,
+)
 from jaxflex.simulation import simulate
 
 Window = tuple[float, float] | None
@@ -46,29 +53,37 @@ def logged_sensors(model: Model, record: Record) -> tuple[AbstractSensor, ...]:
     return found
 
 
-def model_record(model: Model, record: Record, window: Window = None) -> Record:
+def model_record(model: Model, record: Record, window: Window = None, *,
+                 at_rest: bool = True) -> Record:
     """``record`` (cut to ``window``, in its own time) as the rig's model reads it: the input
-    and the sensors' channels re-zeroed at rest (module doc)."""
+    and the sensors' channels re-zeroed at rest (module doc). A record that does not start at
+    rest (``at_rest=False``, for an estimated or periodic start: :mod:`jaxflex.initial`) cannot
+    be re-zeroed there: an encoder is zeroed at its first sample (the estimated start angle
+    takes up the rest), every other sensor keeps the record's zero less its stated offset."""
     check_inputs([record], model)
     if not model.sensors:
         return record if window is None else record.trim(*window)
     cut = record.trim(*window) if window is not None else record.trim()
     chosen = logged_sensors(model, record)
-    bands = rest_bands(chosen, record)
-    moving = why_not_at_rest(record.time, {c: record.channel(c) for c in bands}, bands,
-                             name=record.name, t0=None if window is None else window[0])
-    if moving is not None:
-        raise ValueError(moving)
-    n_rest = max(2, int(round(REST_SPAN / cut.dt)))
+    if at_rest:
+        bands = rest_bands(chosen, record)
+        moving = why_not_at_rest(record.time, {c: record.channel(c) for c in bands}, bands,
+                                 name=record.name, t0=None if window is None else window[0])
+        if moving is not None:
+            raise ValueError(moving)
+    n_rest = max(2, int(round(REST_SPAN / cut.dt))) if at_rest else 1
     columns = {"time": cut.time, cut.input_name: cut.input}
     for sensor in chosen:
         reading = cut.channel(sensor.channel)
-        zero = float(np.mean(reading[:n_rest])) if sensor.rezero else sensor.offset
+        rezero = sensor.rezero and (at_rest or isinstance(sensor, Encoder))
+        zero = float(np.mean(reading[:n_rest])) if rezero else sensor.offset
         columns[sensor.channel] = reading - zero
         _check_scale(model, record.name, sensor, columns[sensor.channel])
     found = ", ".join(s.channel for s in chosen)
-    zeros = ", ".join(f"{s.channel} re-zeroed at rest" if s.rezero
-                      else f"{s.channel} less its offset {s.offset!r}" for s in chosen)
+    where = "at rest" if at_rest else "at its first sample"
+    zeros = ", ".join(f"{s.channel} re-zeroed {where}" if s.rezero and (
+        at_rest or isinstance(s, Encoder)) else f"{s.channel} less its offset {s.offset!r}"
+        for s in chosen)
     ready = cut.with_columns(columns, note=zeros)
     return ready.replace(metadata=ready.metadata | {"rig": model.name, "sensors": found})
 
@@ -105,11 +120,13 @@ def _check_scale(model: Model, name: str, sensor: AbstractSensor, reading: np.nd
 
 
 def prepare(
-    model: Model, records: Sequence[Record], windows: Sequence[Window] | None = None
+    model: Model, records: Sequence[Record], windows: Sequence[Window] | None = None, *,
+    at_rest: bool = True,
 ) -> list[Record]:
     """Each record made ready for ``model`` (:func:`model_record`), each cut to its window."""
     windows = [None] * len(records) if windows is None else list(windows)
-    return [model_record(model, r, w) for r, w in zip(records, windows, strict=True)]
+    return [model_record(model, r, w, at_rest=at_rest)
+            for r, w in zip(records, windows, strict=True)]
 
 
 def fit_noise(model: Model, record: Record) -> dict[str, NoiseLevel]:
@@ -157,7 +174,7 @@ def logged_record(
 ) -> Record:
     """The record the rig would log under ``signal`` (in the drive's units): the drive's column
     and every sensor's reading with its offset, exact, or with each sensor's noise and
-    quantisation drawn from ``seed`` (:meth:`~jaxflex.sensors.Sensor.observe`)."""
+    quantisation drawn from ``seed`` (:meth:`~jaxflex.sensors.AbstractSensor.observe`)."""
     if not model.sensors:
         raise ValueError(f"rig {model.name!r} has no sensors: a record needs at least one output")
     time = np.asarray(time, dtype=np.float64)

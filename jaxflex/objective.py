@@ -19,6 +19,10 @@ the refinement work in (:mod:`jaxflex.parameters`). Only the free parameters are
 
 Records of equal length are stacked and simulated by one ``vmap``; groups of different length
 are simulated one after another inside the same traced function.
+
+Records start at rest, or, for records logged in motion, from an initial state that is a
+function of the parameters (estimated from each record's own residuals, or its periodic steady
+state: :mod:`jaxflex.initial`), so the cost stays a function of the parameters alone.
 """
 
 from __future__ import annotations
@@ -34,9 +38,19 @@ from jaxtyping import Array, ArrayLike, Float, Scalar
 
 from jaxflex._arguments import shown
 from jaxflex.data import Dataset, Record
-from jaxflex.diagnosis import Noise, noise_levels
 from jaxflex.evolve._base import sanitize_fitness
+from jaxflex.initial import (
+    DEFAULT_MODES,
+    check_initial_modes,
+    check_initial_state,
+    check_record_length,
+    estimate_state,
+    input_period,
+    periodic_state,
+    simulate_from,
+)
 from jaxflex.model import Model
+from jaxflex.noise import Noise, noise_levels
 from jaxflex.parallel import population_vmap
 from jaxflex.parameters import ParameterSpace, ParameterSpec, Params
 from jaxflex.simulation import OUTPUT_NAMES, simulate_core
@@ -83,6 +97,11 @@ class Objective(eqx.Module):
     torque: tuple[Float[Array, "R n"], ...]  # per group
     measured: tuple[Float[Array, "R C n"], ...]  # per group
     scale: tuple[Float[Array, "R C"], ...]  # per group, s_rc of the module doc
+    # where each record starts (jaxflex.initial): its option, the modes it sets, and for
+    # "periodic" the input's period in samples per group (records are grouped by it too)
+    initial_state: str = eqx.field(static=True, default="rest")
+    initial_modes: int = eqx.field(static=True, default=0)
+    periods: tuple[int, ...] = eqx.field(static=True, default=())
 
     # --- coordinates -----------------------------------------------------------------------
     @property
@@ -112,20 +131,72 @@ class Objective(eqx.Module):
         return self.space.from_unit(u)
 
     # --- residuals and cost ----------------------------------------------------------------
+    def _read(self, full: Params, out) -> Float[Array, "C n"]:
+        """The fitted channels of one record's outputs, after the effects' calibrations."""
+        read = self.model.readings(full, {c: out.channel(c) for c in self.channels})
+        return jnp.stack([read[c] for c in self.channels])
+
     def simulate(self, params: Mapping[str, ArrayLike]) -> tuple[Float[Array, "R C n"], ...]:
-        """Simulated output channels per group of equally long records (free params only)."""
+        """Simulated output channels per group of equally long records (free params only),
+        each record from its initial state (:meth:`initial_states`)."""
+        if self.initial_state != "rest":
+            return self.simulate_from(params, self.initial_states(params))
         full = self.full(params)
 
         def one(torque):
-            out = simulate_core(self.model, full, torque, self.dt)
-            read = self.model.readings(full, {c: out.channel(c) for c in self.channels})
-            return jnp.stack([read[c] for c in self.channels])
+            return self._read(full, simulate_core(self.model, full, torque, self.dt))
 
         return tuple(jax.vmap(one)(torque) for torque in self.torque)
 
+    def simulate_from(self, params: Mapping[str, ArrayLike],
+                      states: Sequence[Float[Array, "R c"]]) -> tuple[Float[Array, "R C n"], ...]:
+        """Simulated output channels per group, each record from the given coordinates
+        (:mod:`jaxflex.initial`; a row per record of the group)."""
+        full = self.full(params)
+
+        def one(torque, z):
+            return self._read(full, simulate_from(self.model, full, torque, self.dt, z,
+                                                  self.initial_modes))
+
+        return tuple(jax.vmap(one)(torque, z)
+                     for torque, z in zip(self.torque, states, strict=True))
+
+    def initial_states(self, params: Mapping[str, ArrayLike]) -> tuple[Float[Array, "R c"], ...]:
+        """Each record's initial coordinates at ``params`` (a row per record of each group):
+        zero at rest, else estimated from its residuals or periodic (:mod:`jaxflex.initial`)."""
+        modes = self.initial_modes
+        if self.initial_state == "rest":
+            return tuple(jnp.zeros((t.shape[0], 2 + 2 * modes)) for t in self.torque)
+        full = self.full(params)
+        periods = self.periods or (0,) * len(self.torque)
+
+        def one(torque, y, s, period):
+            def residual(z, full):
+                y_sim = self._read(full, simulate_from(self.model, full, torque, self.dt, z,
+                                                       modes))
+                return (s[:, None] * (y_sim - y)).reshape(-1)
+
+            if self.initial_state == "estimate":
+                time = self.dt * jnp.arange(torque.shape[0])
+                return estimate_state(residual, full, modes, time)
+            return periodic_state(self.model, full, torque, self.dt, modes, period, residual)
+
+        return tuple(
+            jax.vmap(lambda t, y, s, period=period: one(t, y, s, period))(torque, y, s)
+            for torque, y, s, period in zip(self.torque, self.measured, self.scale, periods,
+                                            strict=True)
+        )
+
     def residuals(self, params: Mapping[str, ArrayLike]) -> Float[Array, " N"]:
         """The normalised, weighted residual vector ``e`` (free parameters in physical units)."""
-        simulated = self.simulate(params)
+        return self._stacked(self.simulate(params))
+
+    def residuals_from(self, params: Mapping[str, ArrayLike],
+                       states: Sequence[Float[Array, "R c"]]) -> Float[Array, " N"]:
+        """The residual vector with each record started from the given coordinates."""
+        return self._stacked(self.simulate_from(params, states))
+
+    def _stacked(self, simulated: tuple[Array, ...]) -> Float[Array, " N"]:
         parts = [
             (s[..., None] * (y_sim - y)).reshape(-1)
             for y_sim, y, s in zip(simulated, self.measured, self.scale, strict=True)
@@ -344,6 +415,8 @@ def build_objective(
     fixed: Mapping[str, ArrayLike] | None = None,
     bounds: Mapping[str, tuple[float, float]] | None = None,
     noise: Noise | None = None,
+    initial_state: str = "rest",
+    initial_modes: int = DEFAULT_MODES,
 ) -> Objective:
     """The objective of ``model`` (default: the reference testbed) over ``records``.
 
@@ -352,7 +425,10 @@ def build_objective(
     fixed (besides the rig's own fixed parameters, unless ``bounds`` frees one); ``bounds`` maps
     parameter → ``(lower, upper)`` replacing its search bounds. ``channels`` defaults to
     :func:`fitted_channels`; a record that lacks a fitted channel adds no residual for it.
-    Channels of weight 0 are left out of the objective altogether. Every argument is validated
+    Channels of weight 0 are left out of the objective altogether. ``initial_state`` says where
+    each record starts: ``"rest"``, ``"estimate"`` (its state estimated with the parameters) or
+    ``"periodic"`` (the cyclic steady state of its periodic input), the latter two setting the
+    ``initial_modes`` lowest modes (:mod:`jaxflex.initial`). Every argument is validated
     and errors name the record, channel or parameter at fault.
     """
     check_records(records, "build_objective")
@@ -378,14 +454,20 @@ def build_objective(
     )
     specs, fixed_values = free_specs(model.space, bounds, fixed)
     model.space.validate({**model.space.reference(), **fixed_values})
+    initial_state = check_initial_state(initial_state)
+    modes = 0 if initial_state == "rest" else check_initial_modes(initial_modes, model)
+    if initial_state != "rest":
+        for record in dataset:
+            check_record_length(record, model, modes, initial_state)
+    periods = [input_period(r) if initial_state == "periodic" else 0 for r in dataset]
 
     n_records = len(dataset)
     total = sum(weight_values)
-    lengths: dict[int, list[int]] = {}
+    lengths: dict[tuple[int, int], list[int]] = {}  # records of one length (and period)
     for i, record in enumerate(dataset):
-        lengths.setdefault(record.n_samples, []).append(i)
+        lengths.setdefault((record.n_samples, periods[i]), []).append(i)
     torque, measured, scale = [], [], []
-    for n, members in lengths.items():
+    for (n, _), members in lengths.items():
         ys, ss = [], []
         for i in members:
             record = dataset[i]
@@ -421,6 +503,9 @@ def build_objective(
         torque=tuple(torque),
         measured=tuple(measured),
         scale=tuple(scale),
+        initial_state=initial_state,
+        initial_modes=modes,
+        periods=tuple(p for _, p in lengths) if initial_state == "periodic" else (),
     )
 
 

@@ -18,13 +18,14 @@ from __future__ import annotations
 
 from collections.abc import Mapping, Sequence
 
+import equinox as eqx
 import jax
 import jax.numpy as jnp
 from jaxtyping import Array, ArrayLike, Float, Scalar
 
 from jaxflex.data import Record
-from jaxflex.diagnosis import Noise
 from jaxflex.kalman import check_per_sample, filter_core, fit_noise, measurement_noise
+from jaxflex.noise import Noise
 from jaxflex.objective import Objective
 
 CRITERIA: tuple[str, ...] = ("output", "prediction")
@@ -34,8 +35,8 @@ CRITERIA: tuple[str, ...] = ("output", "prediction")
 class PredictionObjective(Objective):
     """An objective whose simulated channels are the filter's one-step predictions."""
 
-    sigma_y: Float[Array, " C"]  # measurement noise per channel
-    disturbance: Scalar  # process-noise torque σ_τ, N m
+    sigma_y: Float[Array, " C"] = eqx.field(kw_only=True)  # measurement noise per channel
+    disturbance: Scalar = eqx.field(kw_only=True)  # process-noise torque σ_τ, N m
 
     def simulate(self, params: Mapping[str, ArrayLike]) -> tuple[Float[Array, "R C n"], ...]:
         """One-step predictions ``ŷ_{t|t−1}`` per group of equally long records."""

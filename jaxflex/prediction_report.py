@@ -16,10 +16,10 @@ from typing import Any
 import numpy as np
 
 from jaxflex.data import Record
-from jaxflex.diagnosis import Noise
 from jaxflex.kalman import Prediction, predict
 from jaxflex.metrics import nrmse
 from jaxflex.model import Model
+from jaxflex.noise import Noise
 from jaxflex.simulation import simulate
 
 

@@ -111,3 +111,20 @@ def designed_torque() -> np.ndarray:
     basis = fourier_basis(1.0, 1e-3, harmonics=20, ramp=0.1)
     shape = np.random.default_rng(0).standard_normal(basis.shape[0]) @ basis
     return 0.3 * shape / np.max(np.abs(shape))
+
+
+def logged_mid_run(model: Model, params, torque, dt, start: int):
+    """A record logged from sample ``start`` of a run from rest (a moving, deflected arm):
+    joint angle and tip acceleration from there on, and the state at ``start`` in the
+    coordinates of :mod:`jaxflex.initial` (angle, velocity, then every flexible mode's
+    coordinates and velocities, mass-normalised: ``η = Φᵀ M q``)."""
+    from jaxflex.modal import free_hub_modes
+
+    q, velocity, acc = radau_states(model, params, torque, dt)
+    structure = model.structure(params)
+    tip = np.asarray(structure.tip)
+    mass, shapes = np.asarray(structure.mass), np.asarray(free_hub_modes(structure).shapes)
+    outputs = np.array([q[start:, 0], model.testbed.length * acc[start:, 0] + acc[start:] @ tip])
+    state = (q[start, 0], velocity[start, 0], shapes.T @ mass @ q[start],
+             shapes.T @ mass @ velocity[start])
+    return outputs, state

@@ -92,6 +92,22 @@ def test_windows_must_start_at_rest_and_say_how():
     assert ready.metadata["history"].startswith("trim [10.1")
 
 
+def test_a_window_cut_mid_motion_is_read_without_rest_for_an_estimated_start():
+    """Not at rest, the encoder reads from its first sample and the strain gauge keeps its
+    stated offset: re-zeroing at a moving start would shift its whole reading."""
+    record, truth = _logged(start=10.0)
+    ready = model_record(ROTFLEX, record, window=(11.0, 12.5), at_rest=False)
+    moving = (record.time >= 11.0 - 1e-9) & (record.time <= 12.5 + 1e-9)
+    angle = record.channel("joint_angle")[moving]
+    assert ready.joint_angle[0] == 0.0
+    np.testing.assert_allclose(ready.joint_angle, angle - angle[0])
+    gauge = ROTFLEX.sensor("deflection_angle")
+    np.testing.assert_allclose(ready.channel("deflection_angle"),
+                               record.channel("deflection_angle")[moving] - gauge.offset)
+    assert "joint_angle re-zeroed at its first sample" in ready.metadata["history"]
+    assert abs(truth["clean"]["deflection_angle"][moving][0]) > 2 * gauge.resolution
+
+
 def test_inputs_and_channels_that_do_not_fit_the_arm_are_named():
     record, _ = _logged()
     volts, angle = record.channel("voltage"), record.joint_angle

@@ -31,7 +31,7 @@ LAYERS: tuple[tuple[str, tuple[str, ...]], ...] = (
     ("data", ("record_files", "data", "preprocess", "rest", "synthetic", "datasets", "arm",
               "rigs", "diagnosis")),
     ("estimation", ("objective", "intervals", "refine", "rigid", "kalman", "prediction_error",
-                    "identification", "comparison", "measured", "design", "initial_state",
+                    "identification", "comparison", "measured", "design", "initial",
                     "prediction_report")),
     ("analysis", ("discovery", "study")),
     ("interface", ("plots", "demo", "cli", "distributed", "jaxflex", "__main__")),

@@ -94,14 +94,15 @@ def windows_of(args: argparse.Namespace, model: Model, records) -> list[Window]:
     return [resolve_window(given.get(r.name), r, rest_bands(model.sensors, r)) for r in records]
 
 
-def ready_records(model: Model, records, windows: list[Window], *, say: bool = True
-                  ) -> list[Record]:
+def ready_records(model: Model, records, windows: list[Window], *, say: bool = True,
+                  at_rest: bool = True) -> list[Record]:
     """Records as the rig logged them, made ready for its model, each cut to its window
-    (:func:`jaxflex.measured.prepare`), with command-line errors; for a rig with sensors, one
-    line per record says which of them it holds (unless not ``say``)."""
+    (:func:`jaxflex.measured.prepare`; not ``at_rest``: records that start in motion), with
+    command-line errors; for a rig with sensors, one line per record says which of them it
+    holds (unless not ``say``)."""
     from jaxflex.measured import logged_sensors, prepare
 
-    ready = _speaking_cli(prepare, model, list(records), windows)
+    ready = _speaking_cli(prepare, model, list(records), windows, at_rest=at_rest)
     for record, window in zip(records, windows, strict=True) if model.sensors and say else ():
         found = logged_sensors(model, record)
         missing = [c for c in model.channels if c not in record.columns]

@@ -19,6 +19,11 @@ from typing import Any, NamedTuple
 
 from jaxflex.cli import UsageError
 
+INITIAL_STATES = ("rest", "estimate", "periodic")
+"""``--initial-state``'s choices: :data:`jaxflex.initial.INITIAL_STATES` (named here, so that
+``--help`` loads no JAX)."""
+INITIAL_MODES = 2
+"""``--initial-modes``'s default: :data:`jaxflex.initial.DEFAULT_MODES`."""
 MAX_BOUND_DECADES = 12
 """Widest ``--bound`` (upper/lower) accepted: beyond it candidates overflow the simulation."""
 
@@ -43,7 +48,7 @@ def _positive(text: str, label: str) -> float:
 
 def _noise_level(text: str, label: str):
     """A white-noise level (:class:`jaxflex.diagnosis.NoiseLevel`) of standard deviation TEXT."""
-    from jaxflex.diagnosis import NoiseLevel
+    from jaxflex.noise import NoiseLevel
 
     return NoiseLevel(sigma=_positive(text, label))
 
@@ -109,6 +114,31 @@ def add_fit_options(p: argparse.ArgumentParser) -> None:
     for o in PAIR_OPTIONS:
         p.add_argument(o.option, dest=f"pairs_{o.keyword}", action="append", default=[],
                        metavar=o.metavar, help=o.help)
+    add_initial_state_options(p)
+
+
+def add_initial_state_options(p: argparse.ArgumentParser, held_out: bool = False) -> None:
+    """``--initial-state`` and ``--initial-modes``: where each record's simulation starts
+    (:mod:`jaxflex.initial`)."""
+    which = "held-out records (fitted ones start where the fit found them)" if held_out else (
+        "records")
+    p.add_argument("--initial-state", choices=INITIAL_STATES, default="rest",
+                   help=f"where the {which} start: at rest, at a state estimated with the "
+                        "parameters, or in the periodic steady state of a periodic input "
+                        "(default: %(default)s)")
+    p.add_argument("--initial-modes", type=_whole, default=INITIAL_MODES, metavar="K",
+                   help="flexible modes whose coordinates an estimated or periodic start sets, "
+                        "the lowest ones (default: %(default)s)")
+
+
+def _whole(text: str) -> int:
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not a whole number") from None
+    if value < 0:
+        raise argparse.ArgumentTypeError(f"{text!r} must be >= 0")
+    return value
 
 
 def effects_from(names: list[str], option: str = "--effect") -> tuple:
@@ -151,6 +181,10 @@ def fit_keywords(args: argparse.Namespace, function: Callable) -> dict[str, Any]
     for o in PAIR_OPTIONS:
         if o.keyword in keywords and o.keyword not in accepted:
             raise UsageError(f"{o.option} is not supported by this command yet")
+    if getattr(args, "initial_state", "rest") != "rest":
+        if "initial_state" not in accepted:
+            raise UsageError("--initial-state is not supported by this command yet")
+        keywords |= {"initial_state": args.initial_state, "initial_modes": args.initial_modes}
     return {k: v for k, v in keywords.items() if k in accepted}
 
 
@@ -174,7 +208,7 @@ def add_record_options(p: argparse.ArgumentParser) -> None:
 
 
 __all__ = [
-    "PAIR_OPTIONS", "PairOption", "add_effect_option", "add_fit_options", "add_quiet_option",
-    "add_record_options", "add_renamed_option",
+    "PAIR_OPTIONS", "PairOption", "add_effect_option", "add_fit_options",
+    "add_initial_state_options", "add_quiet_option", "add_record_options", "add_renamed_option",
     "effects_from", "finite_number", "fit_keywords", "pair_values",
 ]

@@ -90,7 +90,8 @@ def check_before_launch(args: argparse.Namespace) -> None:
         [("--out", args.out, JSON_SUFFIXES), ("--plot", args.plot, FIGURE_SUFFIXES)],
         overwrite=args.overwrite, inputs=[*sources(records), *arm_inputs(source)],
     )
-    ready_records(model, records, windows_of(args, model, records), say=False)
+    ready_records(model, records, windows_of(args, model, records), say=False,
+                  at_rest=getattr(args, "initial_state", "rest") == "rest")
 
 
 def _stopped_by_launcher(signum, frame) -> None:

@@ -108,7 +108,7 @@ def run(args: argparse.Namespace) -> int:
         overwrite=args.overwrite, inputs=[*sources(records), *arm_inputs(source)],
     )
     windows = windows_of(args, model, records)
-    ready = ready_records(model, records, windows)
+    ready = ready_records(model, records, windows, at_rest=args.initial_state == "rest")
     criterion = {} if args.criterion == "output" else {"criterion": args.criterion,
                                                         "disturbance": args.disturbance}
     fit = search(args, ready, model, fit_keywords(args, identify) | criterion)

@@ -100,7 +100,7 @@ def run(args: argparse.Namespace) -> int:
     )
     keywords = fit_keywords(args, identify)
     windows = windows_of(args, model, records)
-    ready = ready_records(model, records, windows)
+    ready = ready_records(model, records, windows, at_rest=args.initial_state == "rest")
     study = run_study(
         ready,
         methods,

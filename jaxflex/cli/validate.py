@@ -32,7 +32,11 @@ from jaxflex.cli._checks import (
     positive_int,
     read_fit,
 )
-from jaxflex.cli._options import add_quiet_option, add_record_options
+from jaxflex.cli._options import (
+    add_initial_state_options,
+    add_quiet_option,
+    add_record_options,
+)
 from jaxflex.cli.identify import sources
 
 HELP = "compare a fitted model with measured records: metrics table and figures"
@@ -101,6 +105,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         "likelihood on each record)",
     )
     add_arm_arguments(p)
+    add_initial_state_options(p, held_out=True)
     add_quiet_option(p)
     p.add_argument("--json", metavar="TABLE.json",
                    help="write the NRMSE of each channel of each record as JSON")
@@ -146,7 +151,8 @@ def run(args: argparse.Namespace) -> int:
     ) or [None]
     json_target = json_target if args.json is not None else None
     windows = windows_of(args, model, records)
-    ready = ready_records(model, records, windows)
+    moving = fit.initial_state != "rest" or args.initial_state != "rest"
+    ready = ready_records(model, records, windows, at_rest=not moving)
     horizons = check_horizons(args.horizon or [], ready)
     t_end = args.t_end if args.t_end is not None or model.sensors else DEFAULT_T_END
     frf = FRFSettings(
@@ -162,6 +168,10 @@ def run(args: argparse.Namespace) -> int:
         frf=frf,
         encoder_counts=args.encoder_counts,
         accel_sigma=args.accel_sigma,
+        initial_states={n: list(z.values()) for n, z in fit.initial_states.items()
+                        if n in names},
+        initial_state=args.initial_state,
+        initial_modes=args.initial_modes,
     )
     seconds = time.perf_counter() - started
     stage(f"compared {len(records)} record(s) with the model ({seconds:.1f} s)", not args.quiet)
