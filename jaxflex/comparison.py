@@ -36,13 +36,12 @@ from jaxtyping import ArrayLike, Bool, Complex, Float
 from jaxflex._io import provenance, to_jsonable
 from jaxflex.data import KNOWN_UNITS, OUTPUT_COLUMNS, Dataset, Record
 from jaxflex.diagnosis.frf import LINK_OUTPUTS
-from jaxflex.initial import DEFAULT_MODES, check_initial_state, record_states, simulate_record
+from jaxflex.initial import DEFAULT_MODES, check_initial_state, simulate_started
 from jaxflex.metrics import frf_nrmse, h1_frf, nrmse, relative_error, spectral_window
 from jaxflex.modal import free_hub_modes
 from jaxflex.model import Model
 from jaxflex.objective import check_channels, check_inputs, fitted_channels, record_tuple
-from jaxflex.sensors import calibrated
-from jaxflex.simulation import Outputs, simulate
+from jaxflex.simulation import Outputs
 
 ROLES = ("fit", "held-out")
 """A record was used to fit the parameters, or held out to validate them."""
@@ -328,19 +327,11 @@ def compare(
     sigma = {s.channel: s.noise_std for s in model.sensors
              if s.noise_std > 0 and s.channel in channels}
 
-    states = {k: np.asarray(v, dtype=float) for k, v in (initial_states or {}).items()}
     check_initial_state(initial_state)
-    if initial_state != "rest":
-        for record in dataset:
-            if record.name not in states:
-                states |= record_states(model, values, [record], channels, initial_state,
-                                        initial_modes)
+    outputs = simulate_started(model, values, dataset, channels, initial_state, initial_modes,
+                               initial_states)
     rows, simulated = [], []
-    for record in dataset:
-        if record.name in states:
-            out = simulate_record(model, values, record, states[record.name])
-        else:
-            out = calibrated(model, values, simulate(model, values, record.input, dt=record.dt))
+    for record, out in zip(dataset, outputs, strict=True):
         role = "fit" if record.name in fit_names else "held-out"
         row = compare_record(record, out, role, t_end, settings, encoder_counts, accel_sigma,
                              channels, link)

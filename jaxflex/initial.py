@@ -353,6 +353,27 @@ def simulate_record(model: Model, params: Mapping[str, float], record: Record,
     return calibrated(model, dict(params), out)
 
 
+def simulate_started(model: Model, params: Mapping[str, float], records, channels,
+                     option: str = "rest", modes: int = DEFAULT_MODES,
+                     states: Mapping[str, Float[np.ndarray, " c"]] | None = None,
+                     ) -> tuple[Outputs, ...]:
+    """Each record's readings at ``params`` from where it starts: its coordinates in
+    ``states`` where given, else its own estimated or periodic state under ``option`` (over
+    ``channels``), else rest."""
+    from jaxflex.simulation import simulate_readings
+
+    states = {k: np.asarray(v, dtype=float) for k, v in (states or {}).items()}
+    if option != "rest":
+        for record in records:
+            if record.name not in states:
+                states |= record_states(model, params, [record], channels, option, modes)
+    return tuple(
+        simulate_record(model, params, r, states[r.name]) if r.name in states
+        else simulate_readings(model, params, r.input, dt=r.dt)
+        for r in records
+    )
+
+
 def initial_state_report(
     objective: Objective, estimate: Mapping[str, float], noise: Mapping[str, float] | None,
     level: float, finite: bool = True,

@@ -258,3 +258,22 @@ def _small_fit_dict() -> dict:
         data.pop(key)
     return data
 
+
+
+@pytest.mark.slow  # a base refit with every record's state profiled out, and the score tests
+def test_discover_on_a_record_logged_mid_run_finds_nothing_missing_from_its_own_start(mid_run):
+    """The clean model on a record that starts moving: from rest the base fit cannot follow
+    the start and the misfit looks like a missing effect; with its state estimated it fits to
+    the noise and nothing is added."""
+    from jaxflex.discovery import discover
+
+    torque, outputs, _ = mid_run
+    record = _record("mid", outputs, torque, seed=4)
+    moving = discover([record], initial=TRUTH, initial_state="estimate", initial_modes=3,
+                      max_steps=1, candidates=["payload", "stribeck", "torque_offset"])
+    assert moving.added == () and moving.unexplained is None
+    assert moving.settings["initial_state"] == "estimate"
+    final = moving.steps[-1].nrmse
+    assert final["tip_acceleration"] < 1.3 * moving.noise_floor["tip_acceleration"]
+    still = discover([record], initial=TRUTH, max_steps=0)
+    assert still.steps[-1].nrmse["joint_angle"] > 10 * final["joint_angle"]

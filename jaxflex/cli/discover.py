@@ -114,9 +114,11 @@ def run(args: argparse.Namespace) -> int:
     check_outputs(targets, overwrite=args.overwrite,
                   inputs=[*sources(records), *sources(holdout or ()), args.initial,
                           *arm_inputs(source)])
-    records = ready_records(model, records, windows_of(args, model, records))
+    at_rest = args.initial_state == "rest"
+    records = ready_records(model, records, windows_of(args, model, records), at_rest=at_rest)
     if holdout is not None:
-        holdout = ready_records(model, holdout, windows_of(args, model, holdout))
+        holdout = ready_records(model, holdout, windows_of(args, model, holdout),
+                                at_rest=at_rest)
     if model.sensors:  # records as logged: the sensors' noise, scored over the whole record
         keywords["noise"] = sensor_noise(model, records) | (
             keywords.get("noise") or {})

@@ -25,11 +25,12 @@ from jaxflex.discovery._universe import BLOCK, Problem, Universe, forward, jacob
 from jaxflex.discovery.candidates import Candidate, candidate_set
 from jaxflex.discovery.report import DiscoveryFit
 from jaxflex.discovery.scores import ScoreResult, score_statistic
+from jaxflex.initial import DEFAULT_MODES, simulate_started
 from jaxflex.model import Model
 from jaxflex.objective import build_objective
 from jaxflex.parameters import ParameterSpace
 from jaxflex.refine import bounded_least_squares_of
-from jaxflex.simulation import Outputs, simulate_readings
+from jaxflex.simulation import Outputs
 
 INNER_WEIGHT = 1e-2
 
@@ -87,6 +88,7 @@ class Engine:
     anchor: np.ndarray | None = None  # the run's starting point: where pinned parameters return
     max_iterations: int = LM_STEPS
     weights: dict[str, float] = dataclasses.field(default_factory=dict)  # user channel weights
+    record_start: tuple[str, int] = ("rest", DEFAULT_MODES)  # initial-state option, modes
 
     @classmethod
     def build(cls, model: Model, candidates: Sequence[Candidate], records: Dataset,
@@ -94,14 +96,17 @@ class Engine:
               bounds: Mapping[str, tuple[float, float]] | None = None,
               fixed: Mapping[str, float] | None = None,
               weights: Mapping[str, float] | None = None,
-              channels: Sequence[str] = CHANNELS) -> Engine:
+              channels: Sequence[str] = CHANNELS,
+              record_start: tuple[str, int] = ("rest", DEFAULT_MODES)) -> Engine:
         """The engine testing ``candidates`` on ``model`` over the records' ``channels`` (the
         simulator outputs they measure); the channels' noise levels are the given ones, the
         others estimated from the residuals of ``params``
         (:func:`jaxflex.diagnosis.estimate_noise`). ``bounds``, ``fixed`` and ``weights`` are
         :func:`jaxflex.identification.identify`'s (:meth:`Universe.build`); a channel's weight
         ``w`` divides its noise level by ``√w`` (it counts ``w`` times in every fit and test),
-        weight 0 leaves it out.
+        weight 0 leaves it out. ``record_start`` is where the records start, an initial-state option
+        and its modes (:mod:`jaxflex.initial`): each record's state is estimated with the
+        parameters in every fit and test.
 
         The universe holds every library effect (and the given candidates) whichever are
         tested, so that every call on the same model and record layout — score tests, a refit,
@@ -114,7 +119,7 @@ class Engine:
         levels = noise_levels(noise, channels)
         if any(c not in levels for c in channels):
             x = universe.vector(params)
-            preds = simulate_all(universe, x, records)
+            preds = simulate_all(universe, x, records, record_start, channels)
             residuals = [{c: r.channel(c) - np.asarray(p.channel(c)) for c in channels}
                          for r, p in zip(records, preds, strict=True)]
             levels = estimate_noise(records, residuals, given=levels, channels=channels)
@@ -123,7 +128,9 @@ class Engine:
                 raise ValueError(f"noise level of {c} must be positive, got {level.sigma!r}; "
                                  "give it with noise={...}")
         objective = build_objective(records, universe.model, channels=channels, weights=weights,
-                                    fixed=universe.fixed, bounds=universe.bounds)
+                                    fixed=universe.fixed, bounds=universe.bounds,
+                                    initial_state=record_start[0],
+                                    initial_modes=record_start[1])
         weights = dict(zip(objective.channels, map(float, objective.weights), strict=True))
         _, channel, _ = objective.layout()
         fitted = objective.channels
@@ -136,7 +143,7 @@ class Engine:
         tested = tuple(i for i, c in enumerate(pool) if c.name in names)
         anchor = np.clip(universe.vector(params), universe.space.lower, universe.space.upper)
         return cls(universe, problem, records, levels, half, half > 0, tested, anchor,
-                   weights=weights)
+                   weights=weights, record_start=record_start)
 
     @staticmethod
     def make_universe(model: Model, candidates: Sequence[Candidate],
@@ -373,7 +380,8 @@ class Engine:
         return (slot, x_start, profiled) if with_cost else (slot, x_start)
 
     def predictions(self, x: np.ndarray, records: Dataset) -> tuple[Outputs, ...]:
-        return simulate_all(self.universe, x, records)
+        return simulate_all(self.universe, x, records, self.record_start,
+                            self.problem.objective.channels)
 
     def prediction_cost(self, predictions: Sequence[Outputs]) -> float:
         """``C`` of any predictions of the records (e.g. of another model)."""
@@ -441,7 +449,10 @@ class Engine:
         return results
 
 
-def simulate_all(universe: Universe, x: np.ndarray, records: Dataset) -> tuple[Outputs, ...]:
+def simulate_all(universe: Universe, x: np.ndarray, records: Dataset,
+                 record_start: tuple[str, int] = ("rest", DEFAULT_MODES),
+                 channels: Sequence[str] = CHANNELS) -> tuple[Outputs, ...]:
+    """The universe model's readings of ``records`` at ``x``, each from where it starts."""
     params = {**universe.fixed, **dict(zip(universe.space.names, map(float, x), strict=True))}
-    return tuple(simulate_readings(universe.model, params, r.input, dt=r.dt) for r in records)
+    return simulate_started(universe.model, params, records, channels, *record_start)
 

@@ -29,6 +29,7 @@ from jaxflex.discovery.operations import full_params
 from jaxflex.discovery.report import Confirmation, DiscoveryFit, DiscoveryReport, Step
 from jaxflex.discovery.scores import ALPHA, ScoreResult
 from jaxflex.effects import AbstractEffect
+from jaxflex.initial import DEFAULT_MODES, check_initial_modes, check_initial_state
 from jaxflex.model import Model
 from jaxflex.objective import (
     as_dataset,
@@ -158,7 +159,8 @@ def _initial_params(records: Dataset, model: Model, initial: Any, budget: tuple[
     fit = identify(records, model, seed=seed, generations=budget[0], population=budget[1],
                    progress=progress, init_population=seeds, intervals=False,
                    bounds=bounds or None, fixed=fixed or None, weights=weights,
-                   channels=channels)
+                   channels=channels, initial_state=fit_options["initial_state"],
+                   initial_modes=fit_options["initial_modes"])
     return full_params(model, fit)
 
 
@@ -192,6 +194,8 @@ def discover(
     channels: Sequence[str] | None = None,
     t_end: float | None = DEFAULT_T_END,
     max_confirm: int = MAX_CONFIRM,
+    initial_state: str = "rest",
+    initial_modes: int = DEFAULT_MODES,
 ) -> DiscoveryReport:
     """Find the effects the model is missing, one at a time (see :mod:`jaxflex.discovery`).
 
@@ -220,7 +224,10 @@ def discover(
     tip acceleration for a rig without sensors); residuals, noise levels, diagnostics and the
     report are per channel. The steps' NRMSE covers the first ``t_end`` seconds of each record
     (``None``: the whole record). ``progress`` reports the base model's fit and each step on
-    stderr, as :func:`~jaxflex.identification.identify` does. Returns a
+    stderr, as :func:`~jaxflex.identification.identify` does. ``initial_state``
+    (``"rest"``, ``"estimate"``, ``"periodic"``; ``initial_modes`` modes) says where the
+    records start (:mod:`jaxflex.initial`): each record's state, fitted and held out, is
+    estimated with the parameters in every fit, test and prediction. Returns a
     :class:`DiscoveryReport`.
     """
     t0 = time.perf_counter()
@@ -251,15 +258,19 @@ def discover(
     )
     if holdout is not None:
         _channels(holdout, channels, model)
+    check_initial_state(initial_state)
+    initial_modes = check_initial_modes(initial_modes, model)
     fit_options = {"bounds": bounds, "fixed": fixed, "weights": weights, "noise": noise,
-                   "channels": channels}
+                   "channels": channels, "initial_state": initial_state,
+                   "initial_modes": initial_modes}
     # bad names or values: fail before any fit
     Engine.make_universe(model, cands, bounds, fixed, channels)
     check_weights(weights, channels)
     rigid = _rigid(records, model, channels)
     start = _initial_params(records, model, initial, budget, seed, progress, rigid, fit_options)
     engine = Engine.build(model, cands, records, start, noise, bounds=bounds, fixed=fixed,
-                          weights=weights, channels=channels)
+                          weights=weights, channels=channels,
+                          record_start=(initial_state, initial_modes))
     u = engine.universe
     names = [c.name for c in u.candidates]
 
@@ -359,6 +370,7 @@ def discover(
         settings={"alpha": alpha, "correction": "Bonferroni over the candidates of each step",
                   "max_steps": max_steps, "max_confirm": max_confirm, "seed": seed,
                   "channels": list(channels), "t_end": t_end,
+                  "initial_state": initial_state, "initial_modes": initial_modes,
                   "budget": budget if initial is None else None,
                   "initial": "given" if initial is not None else "differential evolution",
                   "noise": {c: v.to_dict() for c, v in engine.noise.items()},
