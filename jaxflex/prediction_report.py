@@ -20,7 +20,7 @@ from jaxflex.kalman import Prediction, predict
 from jaxflex.metrics import nrmse
 from jaxflex.model import Model
 from jaxflex.noise import Noise
-from jaxflex.simulation import simulate
+from jaxflex.simulation import simulate_readings
 
 
 @dataclass(frozen=True, eq=False)
@@ -72,12 +72,10 @@ def compare_predictions(
     for record in records:
         [prediction] = predict(record, model, params, horizons, channels=channels, noise=noise,
                                disturbance=disturbance)
-        out = simulate(model, dict(params), record.input, record.dt)
-        read = model.readings({k: np.float64(v) for k, v in params.items()},
-                              {c: out.channel(c) for c in prediction.channels})
+        out = simulate_readings(model, params, record.input, record.dt)
         rows.append(PredictionComparison(
             name=record.name, role="fit" if record.name in fit_names else "held-out",
-            time=record.time, simulated=np.stack([np.asarray(read[c])
+            time=record.time, simulated=np.stack([np.asarray(out.channel(c))
                                                   for c in prediction.channels]),
             prediction=prediction))
     return rows
