@@ -86,7 +86,7 @@ def physical(arm, fit_run, held_out, budget: tuple[int, int], seed: int, effects
     )
     wall = time.perf_counter() - start
     params = {k: float(v) for k, v in fit.params.items()}
-    scores = validate(model, params, [fit_run, held_out])
+    scores = validate([fit_run, held_out], model, params)
     return model, params, {
         "effects": [e.name for e in effects],
         "settings": {"generations": generations, "population": population, "seed": seed},
@@ -279,7 +279,7 @@ def main() -> None:
                                                          args.seed, offset)
     write_json(args.out, results | {"provenance": provenance()}, overwrite=True)
     ready = [model_record(model, r) for r in (fit_run, held_out)]
-    comparison = compare(model, params, ready, fit_names=[fit_run.name], t_end=None)
+    comparison = compare(ready, model, params, fit_names=[fit_run.name], t_end=None)
     for i, path in enumerate(figures[:2]):
         save_figure(plot_time(comparison, i), path, overwrite=True)
     results["prediction"], row = prediction(model, params, fit_run, held_out)

@@ -40,7 +40,13 @@ from jaxflex.initial import DEFAULT_MODES, check_initial_state, simulate_started
 from jaxflex.metrics import frf_nrmse, h1_frf, nrmse, relative_error, spectral_window
 from jaxflex.modal import free_hub_modes
 from jaxflex.model import Model
-from jaxflex.objective import check_channels, check_inputs, fitted_channels, record_tuple
+from jaxflex.objective import (
+    check_channels,
+    check_inputs,
+    check_records,
+    fitted_channels,
+    record_tuple,
+)
 from jaxflex.simulation import Outputs
 
 ROLES = ("fit", "held-out")
@@ -268,9 +274,9 @@ _EXTRA_OUTPUTS = ("joint_velocity", "tip_deflection", "root_strain", "joint_torq
 
 
 def compare(
+    records: Record | Iterable[Record],
     model: Model,
     params: Mapping[str, ArrayLike],
-    records: Record | Iterable[Record],
     *,
     fit_names: Iterable[str] = (),
     t_end: float | None = DEFAULT_T_END,
@@ -301,6 +307,7 @@ def compare(
     rest, or, with ``initial_state`` ``"estimate"`` or ``"periodic"``, from their own state
     at ``params`` (``initial_modes`` modes).
     """
+    check_records(records, "compare")
     dataset = record_tuple(records)  # one sampling rate or several
     names = [r.name for r in dataset]
     twice = sorted({n for n in names if names.count(n) > 1})
@@ -411,9 +418,9 @@ def fit_and_validate(
         )
     fit = identify(fit_set, **identify_kwargs)
     comparison = compare(
+        Dataset([*fit_set, *held_out]),
         fit.model(),
         fit.params,
-        Dataset([*fit_set, *held_out]),
         fit_names=fit_set.names,
         t_end=t_end,
         frf=frf,

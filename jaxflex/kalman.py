@@ -41,7 +41,7 @@ from jaxflex.data import Record
 from jaxflex.diagnosis import estimate_noise
 from jaxflex.model import Model
 from jaxflex.noise import Noise, noise_levels
-from jaxflex.objective import check_channels, fitted_channels, record_tuple
+from jaxflex.objective import check_channels, check_records, fitted_channels, record_tuple
 from jaxflex.parameters import Params
 from jaxflex.simulation import Outputs, _with_readings, model_dynamics, read_channels
 
@@ -351,6 +351,7 @@ def predict(
     :func:`measurement_noise`, the sensors' own: on a real rig what the model misses adds to
     them); without it the channels keep :func:`measurement_noise`.
     """
+    check_records(records, "predict")
     records = list(record_tuple(records))
     channels = fitted_channels(records, model) if channels is None else check_channels(
         channels, model)

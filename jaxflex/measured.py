@@ -26,7 +26,7 @@ from jaxflex.data import Record
 from jaxflex.metrics import nrmse
 from jaxflex.model import Model
 from jaxflex.noise import NoiseLevel
-from jaxflex.objective import check_inputs, fitted_channels
+from jaxflex.objective import check_inputs, check_records, fitted_channels
 from jaxflex.rest import REST_SPAN, rest_bands, why_not_at_rest
 from jaxflex.sensors import (
     AbstractSensor,
@@ -143,9 +143,9 @@ def fit_noise(model: Model, record: Record) -> dict[str, NoiseLevel]:
 
 
 def validate(
+    records: Sequence[Record],
     model: Model,
     params: Mapping[str, float],
-    records: Sequence[Record],
     windows: Sequence[Window] | None = None,
 ) -> dict[str, dict[str, float]]:
     """NRMSE (percent) of each channel the rig fits in each record, simulated at ``params``.
@@ -153,6 +153,7 @@ def validate(
     Records are taken as they come (each cut to its window and re-zeroed at rest, as in
     :func:`model_record`); the whole record (or window) is scored.
     """
+    check_records(records, "validate")
     scores: dict[str, dict[str, float]] = {}
     for ready in prepare(model, records, windows):
         out = calibrated(model, dict(params), simulate(model, dict(params), ready.input, ready.dt))

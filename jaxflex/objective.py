@@ -67,6 +67,7 @@ def as_dataset(records: Records) -> Dataset:
 
     Records with different sampling intervals are refused (by :class:`Dataset`).
     """
+    _records_first(records)
     if isinstance(records, Dataset):
         dataset = records
     elif isinstance(records, Record):
@@ -275,6 +276,7 @@ def check_records(records: Records, function: str) -> None:
     Dataset or an iterable of records."""
     if isinstance(records, (Record, Dataset)):
         return
+    _records_first(records, function)
     if isinstance(records, (str, bytes, Mapping)) or not isinstance(records, Iterable):
         raise TypeError(f"{function}: records must be a Record, a Dataset or records, got "
                         f"{shown(records)}")
@@ -283,8 +285,18 @@ def check_records(records: Records, function: str) -> None:
             raise TypeError(f"{function}: records[{i}] must be a Record, got {shown(record)}")
 
 
+def _records_first(records: object, function: str = "") -> None:
+    """A TypeError if a model stands where the records go: every function that takes
+    measurements takes them first, then the model (``compare(records, model, params)``)."""
+    if isinstance(records, Model):
+        where = f"{function}: " if function else ""
+        raise TypeError(f"{where}the records come first, then the model: "
+                        f"{function or 'f'}(records, model, ...); got a Model as the records")
+
+
 def record_tuple(records: Records) -> tuple[Record, ...]:
     """One record or several as a tuple (any sampling intervals; at least one record)."""
+    _records_first(records)
     records = (records,) if isinstance(records, Record) else tuple(records)
     if not records:
         raise ValueError("no records given: at least one record is needed")

@@ -28,18 +28,18 @@ def records() -> Dataset:
 
 @pytest.fixture(scope="module")
 def right(records) -> Comparison:
-    return compare(Model(), reference_parameters(), records, fit_names=["triangular"], **NOISE)
+    return compare(records, Model(), reference_parameters(), fit_names=["triangular"], **NOISE)
 
 
 @pytest.fixture(scope="module")
 def wrong(records) -> Comparison:
     params = reference_parameters() | {"E": 0.9 * reference_parameters()["E"]}
-    return compare(Model(), params, records, fit_names=["triangular"], **NOISE)
+    return compare(records, Model(), params, fit_names=["triangular"], **NOISE)
 
 
 def test_noise_free_records_are_reproduced_exactly():
     clean = make_records(noise=False)
-    c = compare(Model(), reference_parameters(), clean)
+    c = compare(clean, Model(), reference_parameters())
     for row in c.rows:
         assert max(row.nrmse.values()) < 1e-9
         assert row.frf_nrmse < 1e-9 and row.frf_nrmse_raw < 1e-9
@@ -103,7 +103,7 @@ def test_frf_matches_scipy_h1_and_masks_the_pulse_nulls(right, records):
 
 def test_masking_can_be_switched_off(records):
     raw = FRFSettings(min_input_db=None)
-    c = compare(Model(), reference_parameters(), records["half_sine"], frf=raw)
+    c = compare(records["half_sine"], Model(), reference_parameters(), frf=raw)
     row = c[0]
     assert row.frf_bins[0] == row.frf_bins[1] == 30
     assert row.frf_nrmse == row.frf_nrmse_raw
@@ -112,7 +112,7 @@ def test_masking_can_be_switched_off(records):
 def test_welch_estimate_masks_on_coherence():
     rec = make_records(inputs=("multisine",), amplitudes={"multisine": 0.4}, seed=3)[0]
     settings = FRFSettings(nperseg=500, min_coherence=0.9)
-    row = compare(Model(), reference_parameters(), rec, frf=settings)[0]
+    row = compare(rec, Model(), reference_parameters(), frf=settings)[0]
     compared = row.frf.compared
     assert compared.any() and np.all(row.frf.coherence[compared] >= 0.9)
     assert not np.all(row.frf.coherence[row.frf.band] >= 0.9)  # something was left out
@@ -124,7 +124,7 @@ def test_a_joint_that_never_moves_gives_nan_not_a_crash():
     weak = make_records(inputs=("multisine",), seed=3)[0]  # 0.05 N m < Coulomb friction
     assert not np.any(weak.joint_angle)
     with pytest.warns(UserWarning, match="'multisine': measured joint_angle is zero"):
-        c = compare(Model(), reference_parameters(), weak)
+        c = compare(weak, Model(), reference_parameters())
     assert math.isnan(c[0].nrmse["joint_angle"]) and math.isfinite(c[0].nrmse["tip_acceleration"])
     assert "n/a" in c.table()
     assert (
@@ -136,7 +136,7 @@ def test_a_joint_that_never_moves_gives_nan_not_a_crash():
 
 
 def test_time_window_limits_the_metrics(right, records):
-    c = compare(Model(), reference_parameters(), records["pulse"], t_end=1.0)
+    c = compare(records["pulse"], Model(), reference_parameters(), t_end=1.0)
     keep = records["pulse"].time <= 1.0 + 1e-12
     sim = np.asarray(right.outputs("pulse").tip_acceleration)
     expected = nrmse(records["pulse"].tip_acceleration[keep], sim[keep])
@@ -185,7 +185,8 @@ def test_to_dict_is_strict_json(right, records):
     assert again["settings"]["noise"] == NOISE
     assert "versions" in again["provenance"]
     # a metric that cannot be computed is null, not NaN
-    nan_row = compare(Model(), reference_parameters(), records["pulse"], frf=FRFSettings(f_max=0.1))
+    nan_row = compare(records["pulse"], Model(), reference_parameters(),
+                      frf=FRFSettings(f_max=0.1))
     assert (
         json.loads(json.dumps(nan_row.to_dict(), allow_nan=False))["records"][0][
             "frf_nrmse_percent"
@@ -208,13 +209,13 @@ def test_prediction_and_lookup(right, records):
 def test_input_errors_name_the_problem(records):
     model, ref = Model(), reference_parameters()
     with pytest.raises(ValueError, match=r"fit_names \['tri'\]"):
-        compare(model, ref, records, fit_names=["tri"])
+        compare(records, model, ref, fit_names=["tri"])
     with pytest.raises(ValueError, match="missing for \\['beta'\\]"):
-        compare(model, {k: v for k, v in ref.items() if k != "beta"}, records)
+        compare(records, model, {k: v for k, v in ref.items() if k != "beta"})
     with pytest.raises(ValueError, match="t_end"):
-        compare(model, ref, records, t_end=-1.0)
+        compare(records, model, ref, t_end=-1.0)
     with pytest.raises(ValueError, match="at least one record"):
-        compare(model, ref, [])
+        compare([], model, ref)
     with pytest.raises(ValueError, match="min_input_db"):
         FRFSettings(min_input_db=10.0)
     with pytest.raises(ValueError, match="f_max"):
@@ -271,3 +272,15 @@ def test_fit_on_triangular_validate_on_pulse_and_half_sine(records):
             assert row.nrmse[out] <= 1.3 * row.noise_floor[out], (name, out)
         assert row.frf_nrmse <= 2.0 * row.noise_floor["frf"]
     assert "held-out" in c.table()
+
+
+def test_the_records_come_first_in_every_function_that_takes_them(records):
+    """One convention: records, then the model; the old order fails in one line that says so."""
+    from jaxflex.discovery import refit
+    from jaxflex.kalman import predict
+    from jaxflex.measured import validate
+
+    calls = {"compare": compare, "validate": validate, "predict": predict, "refit": refit}
+    for name, function in calls.items():
+        with pytest.raises(TypeError, match="the records come first, then the model"):
+            function(Model(), reference_parameters(), records)

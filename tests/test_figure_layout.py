@@ -98,7 +98,7 @@ def assert_readable(fig, name: str) -> None:
 @pytest.fixture(scope="module")
 def demo_comparison():
     records = make_records(seed=0)
-    return compare(Model(), true_parameters(), records, fit_names=[FIT_ON], **NOISE)
+    return compare(records, Model(), true_parameters(), fit_names=[FIT_ON], **NOISE)
 
 
 def test_the_checker_finds_overlaps_and_cut_labels():
@@ -206,7 +206,7 @@ def test_real_rig_report_figures():
     except datasets.DataUnavailable as err:
         pytest.skip(f"real-rig data unavailable ({err})")
     rig = load_arm(ARMS / "quanser_rotflex.toml")
-    comparison = compare(rig, rig.space.reference(), list(records.values()),
+    comparison = compare(list(records.values()), rig, rig.space.reference(),
                          fit_names=[next(iter(records))])
     for i, name in enumerate(comparison.names):
         assert_readable(plot_time(comparison, i), f"{name}_time")

@@ -134,9 +134,9 @@ def test_the_estimated_state_at_the_truth_is_the_reference_state(mid_run):
     np.testing.assert_allclose(z[2:4], modal[:2], rtol=0.03, atol=2e-6)
     np.testing.assert_allclose(z[4:6], modal_velocity[:2], rtol=0.03, atol=1e-4)
     # a held-out record compared from its own estimated start, and from rest
-    scores = compare(MODEL, TRUTH, [record], t_end=None, initial_state="estimate").rows[0].nrmse
+    scores = compare([record], MODEL, TRUTH, t_end=None, initial_state="estimate").rows[0].nrmse
     assert max(scores.values()) < 1.0, scores
-    at_rest = compare(MODEL, TRUTH, [record], t_end=None).rows[0].nrmse
+    at_rest = compare([record], MODEL, TRUTH, t_end=None).rows[0].nrmse
     assert min(at_rest.values()) > 20.0, at_rest
 
 
@@ -173,7 +173,7 @@ def test_parameters_and_state_of_a_record_logged_mid_run_are_recovered(mid_run, 
                  "--t-end", "0.6", "--json", str(tmp_path / "scores.json"), "--quiet"]) == 0
     scores = json.loads((tmp_path / "scores.json").read_text())["records"][0]["nrmse"]
     assert scores["joint_angle"] < 2.0 and scores["tip_acceleration"] < 2.0, scores
-    from_rest = compare(MODEL, fit.params, [record], t_end=0.6).rows[0].nrmse
+    from_rest = compare([record], MODEL, fit.params, t_end=0.6).rows[0].nrmse
     assert from_rest["joint_angle"] > 20.0 and from_rest["tip_acceleration"] > 20.0, from_rest
     # fitted from rest, the record logged mid-run is named in a warning
     wrong = identify([record], MODEL, generations=2, population=8, refine=False,

@@ -72,10 +72,10 @@ def test_sensor_noise_models_in_the_sensors_own_units():
 
 def test_validate_scores_every_sensor_channel_over_the_whole_record():
     record, _ = _logged()
-    at_truth = validate(ROTFLEX, TRUE, [record])["synthetic"]
+    at_truth = validate([record], ROTFLEX, TRUE)["synthetic"]
     assert set(at_truth) == {"joint_angle", "deflection_angle"}
     assert max(at_truth.values()) < 1.0  # quantisation only
-    wrong = validate(ROTFLEX, TRUE | {"J_h": 0.0036}, [record])["synthetic"]
+    wrong = validate([record], ROTFLEX, TRUE | {"J_h": 0.0036})["synthetic"]
     assert min(wrong.values()) > 5 * max(at_truth.values())
 
 
@@ -144,7 +144,7 @@ def test_rotflex_square_wave_fit_validates_on_run_985():
     fit = identify(model_record(model, square), model, generations=10, population=20, seed=0,
                    intervals=False)
     params = {k: float(v) for k, v in fit.params.items()}
-    scores = validate(model, params, [square, held_out])
+    scores = validate([square, held_out], model, params)
     assert scores["square_wave"]["joint_angle"] < 6.0
     assert scores["square_wave"]["deflection_angle"] < 10.0
     assert scores["random_985"]["joint_angle"] < 165.0

@@ -22,9 +22,9 @@ from jaxflex.synthetic import make_records
 def comparison():
     records = make_records(inputs=("triangular", "pulse"), seed=1)
     return compare(
+        records,
         Model(),
         reference_parameters(),
-        records,
         fit_names=["triangular"],
         encoder_counts=4096,
         accel_sigma=0.05,

@@ -160,9 +160,9 @@ def run(args: argparse.Namespace) -> int:
     )
     started = time.perf_counter()
     comparison = compare(
+        ready,
         model,
         params,
-        ready,
         fit_names=comparison_fit_names(fit, names),
         t_end=t_end,
         frf=frf,
