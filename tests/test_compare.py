@@ -280,7 +280,6 @@ def test_the_records_come_first_in_every_function_that_takes_them(records):
     from jaxflex.kalman import predict
     from jaxflex.measured import validate
 
-    calls = {"compare": compare, "validate": validate, "predict": predict, "refit": refit}
-    for name, function in calls.items():
+    for function in (compare, validate, predict, refit):
         with pytest.raises(TypeError, match="the records come first, then the model"):
             function(Model(), reference_parameters(), records)
