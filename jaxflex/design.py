@@ -50,6 +50,7 @@ from jaxflex._arguments import positive
 from jaxflex._progress import Progress
 from jaxflex.data import Record
 from jaxflex.model import Model
+from jaxflex.noise import Noise, noise_levels
 from jaxflex.parameters import Params
 from jaxflex.signals import REFERENCE_AMPLITUDES, reference_input, time_grid
 from jaxflex.simulation import (
@@ -91,16 +92,14 @@ MAX_BACKTRACKS = 12
 # --- information ---------------------------------------------------------------------------
 
 
-def _check_noise(noise: Mapping[str, float] | None) -> tuple[tuple[str, ...], np.ndarray]:
+def _check_noise(noise: Noise | None, model: Model) -> tuple[tuple[str, ...], np.ndarray]:
+    """The channels the design weighs and their noise σ: outputs or the rig's sensor channels,
+    each a white σ or a :class:`~jaxflex.noise.NoiseLevel` (:data:`~jaxflex.noise.Noise`)."""
     noise = DEFAULT_NOISE if noise is None else dict(noise)
     if not noise:
         raise ValueError("noise must name at least one output channel and its sigma")
-    for name, sigma in noise.items():
-        if name not in OUTPUT_NAMES:
-            raise ValueError(f"noise: unknown output {name!r}; outputs are {list(OUTPUT_NAMES)}")
-        if not (isinstance(sigma, (int, float)) and math.isfinite(sigma) and sigma > 0):
-            raise ValueError(f"noise: sigma of {name!r} must be a positive number, got {sigma!r}")
-    return tuple(noise), np.array(list(noise.values()), dtype=np.float64)
+    levels = noise_levels(noise, (*OUTPUT_NAMES, *model.channels))
+    return tuple(levels), np.array([v.sigma for v in levels.values()], dtype=np.float64)
 
 
 def _check_names(model: Model, params: Mapping[str, ArrayLike], names) -> tuple[str, ...]:
@@ -152,7 +151,7 @@ def fisher_information(
     params: Mapping[str, ArrayLike] | None,
     torque: Float[ArrayLike, " n"],
     dt: float | None = None,
-    noise: Mapping[str, float] | None = None,
+    noise: Noise | None = None,
     *,
     names: Sequence[str] | None = None,
 ) -> Float[np.ndarray, "d d"]:
@@ -163,7 +162,7 @@ def fisher_information(
     model = Model() if model is None else model
     values = _nominal(model, params)
     names = _check_names(model, values, names)
-    channels, sigmas = _check_noise(noise)
+    channels, sigmas = _check_noise(noise, model)
     dt = model.testbed.dt if dt is None else float(dt)
     torque = check_torque(torque)
     return np.asarray(
@@ -196,7 +195,7 @@ def predicted_intervals(
     params: Mapping[str, ArrayLike] | None,
     torque: Float[ArrayLike, " n"],
     dt: float | None = None,
-    noise: Mapping[str, float] | None = None,
+    noise: Noise | None = None,
     *,
     names: Sequence[str] | None = None,
     level: float = 0.95,
@@ -398,7 +397,7 @@ def design_input(
     iterations: int = 30,
     seed: int = 0,
     restarts: int = 1,
-    noise: Mapping[str, float] | None = None,
+    noise: Noise | None = None,
     names: Sequence[str] | None = None,
     dt: float | None = None,
     progress: bool = False,
@@ -419,7 +418,7 @@ def design_input(
     model = Model() if model is None else model
     values = _nominal(model, params)
     names = _check_names(model, values, names)
-    channels, sigmas = _check_noise(noise)
+    channels, sigmas = _check_noise(noise, model)
     if criterion not in CRITERIA:
         raise ValueError(f"criterion={criterion!r}: choose one of {list(CRITERIA)}")
     dt = model.testbed.dt if dt is None else positive(dt, "dt")
@@ -571,7 +570,7 @@ def compare_inputs(
     model: Model | None = None,
     params: Mapping[str, ArrayLike] | None = None,
     dt: float | None = None,
-    noise: Mapping[str, float] | None = None,
+    noise: Noise | None = None,
     *,
     names: Sequence[str] | None = None,
 ) -> dict[str, dict[str, dict[str, float]]]:

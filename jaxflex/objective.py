@@ -37,7 +37,7 @@ import numpy as np
 from jaxtyping import Array, ArrayLike, Float, Scalar
 
 from jaxflex._arguments import shown
-from jaxflex.data import Dataset, Record
+from jaxflex.data import OUTPUT_COLUMNS, Dataset, Record
 from jaxflex.evolve._base import sanitize_fitness
 from jaxflex.initial import (
     DEFAULT_MODES,
@@ -53,10 +53,7 @@ from jaxflex.model import Model
 from jaxflex.noise import Noise, noise_levels
 from jaxflex.parallel import population_vmap
 from jaxflex.parameters import ParameterSpace, ParameterSpec, Params
-from jaxflex.simulation import OUTPUT_NAMES, simulate_core
-
-DEFAULT_CHANNELS: tuple[str, ...] = ("joint_angle", "tip_acceleration")
-"""Output channels the objective fits unless told otherwise: joint angle, tip acceleration."""
+from jaxflex.simulation import OUTPUT_NAMES, read_channels, simulate_core
 
 Records = Dataset | Record | Iterable[Record]
 """What functions that take measurements accept: a data set, one record or records."""
@@ -134,8 +131,7 @@ class Objective(eqx.Module):
     # --- residuals and cost ----------------------------------------------------------------
     def _read(self, full: Params, out) -> Float[Array, "C n"]:
         """The fitted channels of one record's outputs, after the effects' calibrations."""
-        read = self.model.readings(full, {c: out.channel(c) for c in self.channels})
-        return jnp.stack([read[c] for c in self.channels])
+        return read_channels(self.model, full, out, self.channels)
 
     def simulate(self, params: Mapping[str, ArrayLike]) -> tuple[Float[Array, "R C n"], ...]:
         """Simulated output channels per group of equally long records (free params only),
@@ -255,9 +251,9 @@ def check_channels(
 def fitted_channels(records: Records, model: Model) -> tuple[str, ...]:
     """The channels fitted unless told: each sensor channel of the rig that some record holds
     (a record may hold any subset; what it lacks is not fitted there), or, for a rig without
-    sensors, those of :data:`DEFAULT_CHANNELS` that some record holds."""
+    sensors, those of :data:`~jaxflex.records.OUTPUT_COLUMNS` that some record holds."""
     dataset = record_tuple(records)
-    candidates = model.channels or DEFAULT_CHANNELS
+    candidates = model.channels or OUTPUT_COLUMNS
     found = tuple(c for c in candidates if any(c in r.columns for r in dataset))
     if not found and not model.channels:  # records of other outputs only (a deflection)
         candidates = tuple(c for c in OUTPUT_NAMES if c != "joint_torque")
@@ -347,7 +343,7 @@ def check_weights(weights: Mapping[str, float] | None, channels: Sequence[str]) 
 
 
 def noise_weights(records: Records, noise: Noise,
-                  channels: Sequence[str] = DEFAULT_CHANNELS) -> dict[str, float]:
+                  channels: Sequence[str] = OUTPUT_COLUMNS) -> dict[str, float]:
     """Channel weights from noise levels (a white σ or a :class:`NoiseLevel` per channel):
     ``w_c = mean_r ms(y_rc) / σ_c²`` over the records that hold the channel, which makes the
     objective's residual ``(ŷ − y)/σ_c`` up to one common factor (module docstring). Every
@@ -521,6 +517,6 @@ def build_objective(
     )
 
 
-__all__ = ["DEFAULT_CHANNELS", "Objective", "as_dataset", "build_objective", "check_channels",
+__all__ = ["Objective", "as_dataset", "build_objective", "check_channels",
            "check_inputs", "check_records", "check_weights", "fitted_channels", "free_specs",
            "held_fixed", "noise_weights", "record_tuple"]

@@ -19,7 +19,7 @@ from numpy.typing import ArrayLike
 from scipy import signal
 
 from jaxflex._arguments import finite_float, positive
-from jaxflex.data import Record, RecordWarning, resample_columns
+from jaxflex.data import OUTPUT_COLUMNS, Record, RecordWarning, resample_columns
 
 _MIN_QUIET_SAMPLES = 10
 
@@ -71,7 +71,7 @@ def lowpass(
 def lowpass_record(
     record: Record,
     cutoff_hz: float,
-    channels: Sequence[str] = ("joint_angle", "tip_acceleration"),
+    channels: Sequence[str] = OUTPUT_COLUMNS,
     order: int = 4,
 ) -> Record:
     """``record`` with the named channels zero-phase low-passed (outputs only, by default).

@@ -21,6 +21,7 @@ from jaxtyping import ArrayLike
 
 from jaxflex.data import Dataset, Record
 from jaxflex.model import Model
+from jaxflex.noise import Noise, noise_levels
 from jaxflex.parameters import Params
 from jaxflex.signals import reference_input
 from jaxflex.simulation import OUTPUT_NAMES, simulate_readings
@@ -79,11 +80,29 @@ def add_measurement_noise(
     )
 
 
+def add_noise(record: Record, noise: Noise, seed: Seed) -> Record:
+    """``record`` as sensors of the given noise levels (:data:`~jaxflex.noise.Noise`) would log
+    it: a quantised level rounds its channel to the step, a white one adds Gaussian noise
+    (drawn in the order given, from ``seed``); channels not named are left as they are."""
+    seed = _check_seed(seed)
+    levels = noise_levels(noise, record.columns)
+    rng = np.random.default_rng(seed)
+    noisy = {
+        c: quantise_angle(record.channel(c), v.step) if v.kind == "quantised"
+        else record.channel(c) + v.sigma * rng.standard_normal(record.n_samples)
+        for c, v in levels.items()
+    }
+    note = "noise: " + ", ".join(f"{c} {v.describe()}, sigma {v.sigma:.6g}"
+                                 for c, v in levels.items())
+    logged = record.with_columns({c: record.channel(c) for c in record.columns} | noisy, note)
+    return logged.replace(metadata=logged.metadata | {"noise_seed": str(seed)})
+
+
 def make_records(
     model: Model | None = None,
     params: Mapping[str, ArrayLike] | None = None,
     inputs: Sequence[str] = DEFAULT_INPUTS,
-    noise: bool = True,
+    noise: bool | Noise = True,
     seed: int = 0,
     amplitudes: Mapping[str, float] | None = None,
     *,
@@ -96,9 +115,11 @@ def make_records(
     ``params`` defaults to the model's reference values (missing names are filled from them, so
     ``{"E": 6e10}`` changes only E). ``inputs`` are names known to
     :func:`jaxflex.signals.reference_input`; ``amplitudes`` overrides their default amplitudes
-    by name. ``duration``/``dt`` default to the testbed's. ``noise`` adds the testbed's sensor
-    noise with ``seed`` (record ``i`` uses the seed ``(seed, i)``); ``extras`` names further
-    simulated outputs (e.g. ``"tip_deflection"``) to store noise-free as extra columns.
+    by name. ``duration``/``dt`` default to the testbed's. ``noise`` adds measurement noise with
+    ``seed`` (record ``i`` uses the seed ``(seed, i)``): ``True`` the testbed's sensors',
+    ``False`` none, or the channels' levels (:data:`~jaxflex.noise.Noise`, :func:`add_noise`);
+    ``extras`` names further simulated outputs (e.g. ``"tip_deflection"``) to store noise-free
+    as extra columns.
     """
     model = Model() if model is None else model
     values = true_parameters(model, params)
@@ -128,7 +149,11 @@ def make_records(
             "effects": ", ".join(model.effect_names) or "none",
         }
         record = simulated_record(model, values, name, time, torque, dt, extras, metadata)
-        records.append(add_measurement_noise(record, (seed, i)) if noise else record)
+        if isinstance(noise, Mapping):
+            record = add_noise(record, noise, (seed, i))
+        elif noise:
+            record = add_measurement_noise(record, (seed, i))
+        records.append(record)
     return Dataset(records)
 
 

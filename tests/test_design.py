@@ -149,7 +149,7 @@ def test_design_input_checks():
         design_input(**limits, criterion="A")
     with pytest.raises(ValueError, match="max_speed=.* must be > 0"):
         design_input(**(limits | {"max_speed": -1.0}))
-    with pytest.raises(ValueError, match="noise: unknown output 'strain'"):
+    with pytest.raises(ValueError, match="noise given for unknown channel 'strain'"):
         design_input(**limits, noise={"strain": 1.0})
     with pytest.raises(ValueError, match="unknown parameter"):
         predicted_intervals(None, {"J_hub": 1.0}, np.ones(10))

@@ -100,3 +100,19 @@ def test_parameters_amplitudes_and_errors():
         make_records(inputs=("pulse",), amplitudes={"chirp": 0.1})
     with pytest.raises(ValueError, match="extra outputs"):
         make_records(extras=("joint_angle",))
+
+
+def test_noise_given_as_levels_is_the_testbed_noise_when_the_levels_are_the_testbed_s():
+    """``noise`` is one type everywhere (:data:`jaxflex.noise.Noise`): the spec's encoder step and
+    accelerometer σ given as levels write the very records ``noise=True`` writes."""
+    from jaxflex.noise import NoiseLevel
+    from jaxflex.synthetic import ACCELEROMETER_SIGMA, ENCODER_STEP
+
+    spec = make_records(inputs=["pulse", "half_sine"], seed=5)
+    given = make_records(inputs=["pulse", "half_sine"], seed=5, noise={
+        "joint_angle": NoiseLevel.quantised(ENCODER_STEP), "tip_acceleration": ACCELEROMETER_SIGMA})
+    for a, b in zip(spec, given, strict=True):
+        assert np.array_equal(a.joint_angle, b.joint_angle)
+        assert np.array_equal(a.tip_acceleration, b.tip_acceleration)
+    with pytest.raises(ValueError, match="noise given for unknown channel 'strain'"):
+        make_records(inputs=["pulse"], noise={"strain": 1e-6})

@@ -12,12 +12,6 @@ from numpy.typing import ArrayLike
 from jaxflex.data import KNOWN_UNITS, OUTPUT_COLUMNS, Record
 from jaxflex.noise import NOISE_SOURCES, Noise, NoiseLevel, noise_levels
 
-CHANNELS: tuple[str, ...] = OUTPUT_COLUMNS
-
-"""Output channels compared with measurements by default: joint angle (rad), tip acceleration
-(m/s²); an arm's sensors give others (``channels=`` of :func:`estimate_noise`, ``diagnose``)."""
-
-
 UNITS: dict[str, str] = dict(KNOWN_UNITS)
 """Unit of each output channel, for the reports."""
 
@@ -170,7 +164,7 @@ def white_noise_level(residual: ArrayLike) -> float:
 
 def estimate_noise(records: Sequence[Record], residuals: Sequence[Mapping[str, np.ndarray]],
                    given: Noise | None = None,
-                   channels: Sequence[str] = CHANNELS) -> dict[str, NoiseLevel]:
+                   channels: Sequence[str] = OUTPUT_COLUMNS) -> dict[str, NoiseLevel]:
     """Noise level of each of ``channels``: ``given`` (:func:`noise_levels`) where the user gave
     one; else quantised if every record's measurement lies on a grid (the finest step); else
     white, estimated from the residuals but never below the measurements' :func:`resolution`

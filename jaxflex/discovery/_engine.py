@@ -20,7 +20,6 @@ from jaxflex.diagnosis import (
     estimate_noise,
     noise_levels,
 )
-from jaxflex.diagnosis.noise import CHANNELS
 from jaxflex.discovery._universe import BLOCK, Problem, Universe, forward, jacobian_block
 from jaxflex.discovery.candidates import Candidate, candidate_set
 from jaxflex.discovery.report import DiscoveryFit
@@ -29,6 +28,7 @@ from jaxflex.initial import DEFAULT_MODES, simulate_started
 from jaxflex.model import Model
 from jaxflex.objective import build_objective
 from jaxflex.parameters import ParameterSpace
+from jaxflex.records import OUTPUT_COLUMNS
 from jaxflex.refine import bounded_least_squares_of
 from jaxflex.simulation import Outputs
 
@@ -96,7 +96,7 @@ class Engine:
               bounds: Mapping[str, tuple[float, float]] | None = None,
               fixed: Mapping[str, float] | None = None,
               weights: Mapping[str, float] | None = None,
-              channels: Sequence[str] = CHANNELS,
+              channels: Sequence[str] = OUTPUT_COLUMNS,
               record_start: tuple[str, int] = ("rest", DEFAULT_MODES)) -> Engine:
         """The engine testing ``candidates`` on ``model`` over the records' ``channels`` (the
         simulator outputs they measure); the channels' noise levels are the given ones, the
@@ -451,7 +451,7 @@ class Engine:
 
 def simulate_all(universe: Universe, x: np.ndarray, records: Dataset,
                  record_start: tuple[str, int] = ("rest", DEFAULT_MODES),
-                 channels: Sequence[str] = CHANNELS) -> tuple[Outputs, ...]:
+                 channels: Sequence[str] = OUTPUT_COLUMNS) -> tuple[Outputs, ...]:
     """The universe model's readings of ``records`` at ``x``, each from where it starts."""
     params = {**universe.fixed, **dict(zip(universe.space.names, map(float, x), strict=True))}
     return simulate_started(universe.model, params, records, channels, *record_start)

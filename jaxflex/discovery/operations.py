@@ -14,7 +14,6 @@ from jaxflex.diagnosis import (
     Noise,
     noise_levels,
 )
-from jaxflex.diagnosis.noise import CHANNELS
 from jaxflex.discovery._engine import Engine
 from jaxflex.discovery.candidates import Candidate, as_candidate, candidate_set
 from jaxflex.discovery.report import DiscoveryFit
@@ -22,6 +21,7 @@ from jaxflex.discovery.scores import ALPHA, ScoreResult
 from jaxflex.effects import AbstractEffect
 from jaxflex.model import Model
 from jaxflex.objective import as_dataset
+from jaxflex.records import OUTPUT_COLUMNS
 
 
 def full_params(model: Model, params: Mapping[str, ArrayLike] | Any) -> dict[str, float]:
@@ -45,7 +45,7 @@ def score_tests(
     *,
     alpha: float = ALPHA,
     noise: Noise | None = None,
-    channels: Sequence[str] = CHANNELS,
+    channels: Sequence[str] = OUTPUT_COLUMNS,
 ) -> list[ScoreResult]:
     """Score-test every candidate effect at the fit ``params`` of ``model`` (best first).
 
@@ -70,7 +70,7 @@ def refit(
     params: Mapping[str, ArrayLike] | Any,
     *,
     noise: Noise | None = None,
-    channels: Sequence[str] = CHANNELS,
+    channels: Sequence[str] = OUTPUT_COLUMNS,
 ) -> DiscoveryFit:
     """Fit ``model`` on the discovery likelihood from ``params`` (a mapping or a fit).
 
@@ -114,7 +114,7 @@ def add_effect(
         raise ValueError(f"effect {cand.name!r} is already in the model")
     levels = dict(fit.noise) if isinstance(fit, DiscoveryFit) else {}
     if channels is None:
-        channels = tuple(levels) or CHANNELS
+        channels = tuple(levels) or OUTPUT_COLUMNS
     levels.update(noise_levels(noise, channels))
     engine = Engine.build(base, (cand,), records, values, levels, channels=channels)
     x0 = engine.universe.vector(values)
