@@ -20,7 +20,6 @@ from jaxflex.diagnosis.correlation import (
 from jaxflex.diagnosis.frf import LINK_OUTPUTS, FrfComparison, frf_error
 from jaxflex.diagnosis.localise import Localisation, localise
 from jaxflex.diagnosis.noise import (
-    CHANNELS,
     UNITS,
     Noise,
     NoiseLevel,
@@ -29,6 +28,7 @@ from jaxflex.diagnosis.noise import (
 )
 from jaxflex.diagnosis.scaling import AmplitudeScaling, amplitude_scaling
 from jaxflex.diagnosis.spectrum import ResidualSpectrum, residual_spectrum
+from jaxflex.records import OUTPUT_COLUMNS
 
 RMS_RATIO_LIMIT = 1.3
 
@@ -288,7 +288,7 @@ def diagnose(
     alpha: float = 0.01,
     max_lag: int | None = None,
     f_max: float = 15.0,
-    channels: Sequence[str] = CHANNELS,
+    channels: Sequence[str] = OUTPUT_COLUMNS,
 ) -> Diagnosis:
     """Run every diagnostic on the residuals of ``predictions`` (one per record) in
     ``channels``, the outputs the records measure (default ``joint_angle`` and
