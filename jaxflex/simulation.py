@@ -14,8 +14,8 @@ hold) and does three things:
    and the result does not depend on how a compiler rounds the iterations. It starts from a
    Newton step off the previous step's velocity with the friction and slope carried there,
    takes two plain Newton steps as straight-line code, and only where the round-off test then
-   fails (0.05–0.2 % of the steps) solves again with a safeguarded loop; it hands on the
-   friction it evaluated at the root (no further evaluation of the law);
+   fails (breakaway, stops: a small share of the steps) solves again with a safeguarded loop;
+   it hands on the friction it evaluated at the root (no further evaluation of the law);
 3. applies the weak rank-one mass-damping coupling (folded into the step's coefficients) and
    position-dependent loads (gravity) explicitly from the start of the step.
 
@@ -56,7 +56,7 @@ RESIDUAL_ULPS = 16.0
 """The friction residual counts as converged within this many ulps of its terms."""
 NEWTON_STEPS = 2
 """Plain Newton steps of the friction solve before its round-off test; a lane that fails the
-test (0.05–0.2 % of the steps) is solved again by the safeguarded loop. Straight-line steps cost
+test (breakaway, stops) is solved again by the safeguarded loop. Straight-line steps cost
 far less than turns of a loop (``benchmarks/profile_simulate.py`` times 0 to 3 of them)."""
 SCAN_UNROLL = 1
 #: Weight of the end-of-step friction (θ-method): 0.5 is trapezoidal, 1 backward Euler.
@@ -171,7 +171,7 @@ def _bracketed_newton(residual, lo: Array, hi: Array, guess: Array):
 
     First :data:`NEWTON_STEPS` plain Newton steps from ``guess``, straight-line code that XLA
     fuses; a lane whose result lies in the bracket with its residual at round-off is done. The
-    others (0.05–0.2 % of the steps: breakaway, stops) restart from ``guess`` in a safeguarded
+    others (breakaway, stops) restart from ``guess`` in a safeguarded
     loop: Newton steps that leave the bracket fall back to bisection, so every iteration shrinks
     it; it stops when the residual is at round-off, the Newton step is below an ulp of ``v``,
     the bracket has collapsed or an iteration left ``v`` unchanged, and after
@@ -518,8 +518,8 @@ def model_dynamics(model: Model, params: Params, dt: float) -> Dynamics:
         return rigid, modal, (-system.coupling * flex_velocity, amp)
 
     # the free step with the mass-damping coupling ``αJ·(p²η' − p·pᵀη')`` folded into its
-    # coefficients, formed once (measured 1.3× faster at 50 candidates a device than applying
-    # it as a force each step): η_free = p11·η + a12·η' + bx·pᵀη' (+ gx·loads), likewise η'
+    # coefficients, formed once rather than applied as a force each step (fewer operations in
+    # the time loop): η_free = p11·η + a12·η' + bx·pᵀη' (+ gx·loads), likewise η'
     coupled = system.coupling * p2
     a12, a22 = maps.p12 + coupled * maps.gx, maps.p22 + coupled * maps.gv
     bx, bv = -system.coupling * gx_p, -system.coupling * gv_p

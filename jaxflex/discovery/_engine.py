@@ -1,6 +1,6 @@
 """The fitting engine of discovery: the noise-whitened, quantisation-aware discovery
 likelihood on the universe, its fits (pattern search, profiles, and the bounded
-Levenberg–Marquardt of :mod:`jaxflex.refine`) and score tests, with one compiled Jacobian for
+Levenberg–Marquardt of :mod:`jaxflex.least_squares`) and score tests, with one compiled Jacobian for
 the whole run."""
 
 from __future__ import annotations
@@ -25,11 +25,11 @@ from jaxflex.discovery.candidates import Candidate, candidate_set
 from jaxflex.discovery.report import DiscoveryFit
 from jaxflex.discovery.scores import ScoreResult, score_statistic
 from jaxflex.initial import DEFAULT_MODES, simulate_started
+from jaxflex.least_squares import bounded_least_squares_of
 from jaxflex.model import Model
 from jaxflex.objective import build_objective
 from jaxflex.parameters import ParameterSpace
 from jaxflex.records import OUTPUT_COLUMNS
-from jaxflex.refine import bounded_least_squares_of
 from jaxflex.simulation import Outputs
 
 INNER_WEIGHT = 1e-2
@@ -74,7 +74,7 @@ class Engine:
 
     Every Jacobian of a run (score tests, each Levenberg–Marquardt step of each refit) comes
     from the one compiled forward-mode block (``jacobian_block``); the refits' bounded
-    Levenberg–Marquardt (:func:`jaxflex.refine.bounded_least_squares_of`) calls it back.
+    Levenberg–Marquardt (:func:`jaxflex.least_squares.bounded_least_squares_of`) calls it back.
     Coordinates: ``φ = log x`` for active log-scale parameters, else ``x``.
     """
 
@@ -276,7 +276,7 @@ class Engine:
 
     def _lm(self, x0: np.ndarray, active: Sequence[int]) -> np.ndarray:
         """Levenberg–Marquardt of the base and ``active`` parameters on the bounds
-        (:func:`jaxflex.refine.bounded_least_squares_of`, on :meth:`_system`).
+        (:func:`jaxflex.least_squares.bounded_least_squares_of`, on :meth:`_system`).
 
         The coordinates are the physical values over their starting magnitudes: in log
         coordinates a parameter pushed against a lower bound near zero (a friction term that
