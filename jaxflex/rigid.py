@@ -420,6 +420,26 @@ def _rigid_scan(coefficients: Array, torque: Array, dt: float, n_substeps: int):
 # --- warm start of the evolutionary search -----------------------------------------------------
 
 
+def _resolved(estimate: RigidEstimate, space: ParameterSpace) -> dict[str, float]:
+    """The estimate's values of ``space``'s parameters that it resolved: not on a physical
+    constraint (``b_v = 0`` says only that the records do not resolve it)."""
+    on_constraint = {"J_h" if a == "J_tot" else a for a in estimate.active}
+    return {k: v for k, v in estimate.parameters().items()
+            if k in space.names and k not in on_constraint}
+
+
+def search_centre(estimate: RigidEstimate | None, space: ParameterSpace) -> dict[str, Array]:
+    """Where the search from scratch is centred: ``space``'s reference values, with those the
+    rigid-body ``estimate`` resolved (``None``: no estimate) put in, each clipped into the box.
+
+    The point knows nothing of the flexible fit, so a base parameter that ends on a bound while
+    compensating a missing effect can be sent back to it (:mod:`jaxflex.discovery`)."""
+    known = {} if estimate is None else _resolved(estimate, space)
+    centre = space.reference() | {k: jnp.asarray(v, dtype=jnp.float64) for k, v in known.items()}
+    return {k: jnp.clip(v, space[k].lower, space[k].upper) for k, v in centre.items()}
+
+
+
 def warm_start(
     estimate: RigidEstimate,
     space: ParameterSpace,
@@ -439,18 +459,12 @@ def warm_start(
         raise ValueError(f"population must be an int >= 1, got {population!r}")
     if not (math.isfinite(spread) and 0 < spread <= 1):
         raise ValueError(f"spread={spread!r} must be in (0, 1] (a width in the unit box)")
-    on_constraint = {"J_h" if a == "J_tot" else a for a in estimate.active}
-    known = {
-        k: v
-        for k, v in estimate.parameters().items()
-        if k in space.names and k not in on_constraint
-    }
+    known = _resolved(estimate, space)
     rng = np.random.default_rng(seed)
     u = rng.uniform(0.0, 1.0, (int(population), len(space)))
     if not known:
         return u
-    centre = space.reference() | {k: jnp.asarray(v, dtype=jnp.float64) for k, v in known.items()}
-    u0 = space.unit_seeds(centre)[0]
+    u0 = space.unit_seeds(search_centre(estimate, space))[0]
     for name in known:
         i = space.names.index(name)
         u[:, i] = np.clip(u0[i] + spread * rng.uniform(-1.0, 1.0, int(population)), 0.0, 1.0)
@@ -467,5 +481,6 @@ __all__ = [
     "estimate_rigid",
     "rigid_regression",
     "rigid_simulate",
+    "search_centre",
     "warm_start",
 ]

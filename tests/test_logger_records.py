@@ -4,11 +4,12 @@ Every record set is simulated (by jaxflex, or by SciPy Radau on the FEM equation
 ``reference_solver``, a payload and a tilted plane included), read by an encoder of ``counts``
 per revolution whose grid is offset from zero and by an accelerometer with the spec's white
 noise, and written to CSV as a data logger writes it: with a fixed number of significant digits,
-or as float32 numbers. ``discover`` starts near the truth (as in ``test_discover``), estimates
-every noise level from the files, and must add nothing to clean records, name a hidden payload or
-a tilted plane and nothing beside it, and end within 1.3× the noise floor: the NRMSE of the
-noise-free truth against the written records. Slow cases add a compliant clamp and Stribeck
-friction whose velocity lies between the discovery grid's starts, read by a coarse encoder.
+or as float32 numbers. ``discover`` starts near the truth (as in ``test_discover``) or, in slow
+cases, identifies the base model from scratch; it estimates every noise level from the files,
+and must add nothing to clean records, name a hidden payload or a tilted plane and nothing
+beside it, and end within 1.3× the noise floor: the NRMSE of the noise-free truth against the
+written records. Slow cases add a compliant clamp and Stribeck friction whose velocity lies
+between the discovery grid's starts, read by a coarse encoder.
 
 A few representative cases run by default; the whole matrix (6, 7, 9 and 17 digits, float32,
 1024–10000 counts, 500 Hz and 1 kHz, 1.5–3 s) is marked slow.
@@ -39,6 +40,9 @@ INPUTS = ("triangular", "pulse", "half_sine")
 PAYLOAD = 0.03  # kg, the hidden effect
 TILT = 0.06  # rad, the motion plane's tilt: another hidden effect
 COMPLIANCE = 0.04  # rad/(N m), a compliant clamp: another (it moves the first mode far)
+#: A clamp so compliant that the base model cannot follow its first mode: 4.43 Hz, below the
+#: 4.79 Hz of the softest link the base model allows (E = 20 GPa).
+LOOSE_CLAMP = 0.3  # rad/(N m)
 STRIBECK = Stribeck(v_s=0.2)  # a Stribeck velocity between the discovery grid's starts
 EXCESS = 0.04  # N m, its breakaway torque above the Coulomb level
 CHANNELS = ("joint_angle", "tip_acceleration")
@@ -232,3 +236,29 @@ def test_radau_records_fit_the_stribeck_velocity(tmp_path, logger):
     report = discover(records, initial=START)
     check_found(report, floor, "stribeck", "delta_tau_s", EXCESS)
     assert report.params["v_s"] == pytest.approx(STRIBECK.v_s, rel=0.05)
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize(("logger", "compliance"),
+                         [(COARSE[0], COMPLIANCE), *((c, LOOSE_CLAMP) for c in COARSE)], ids=str)
+def test_radau_records_name_a_compliant_clamp_from_scratch(tmp_path, logger, compliance):
+    """The base model identified from scratch (differential evolution seeded around the
+    rigid-body estimate), as ``jaxflex discover DATA.csv`` runs: behind a loose clamp the base
+    fit stays far from the data, its link as soft as allowed, yet the clamp is named, and
+    nothing else, and the fit ends at the noise floor."""
+    records, floor = logger_records(tmp_path, logger,
+                                    {"root_compliance": {"c_r": compliance}}, radau_outputs)
+    report = discover(records)
+    assert report.settings["initial"] == "differential evolution"
+    if compliance == LOOSE_CLAMP:
+        base = report.steps[1]
+        softest = Model().space["E"].lower
+        assert base.fit.params["E"] == pytest.approx(softest, rel=1e-6), report.table()
+        assert base.nrmse["tip_acceleration"] > 10 * floor["tip_acceleration"], report.table()
+    check_found(report, floor, "root_compliance", "c_r", compliance)
+
+
+@pytest.mark.slow
+def test_clean_radau_records_from_scratch_add_nothing(tmp_path):
+    records, floor = logger_records(tmp_path, COARSE[0], {}, radau_outputs)
+    check_clean(discover(records), floor, COARSE[0])

@@ -43,19 +43,21 @@ The loop (:func:`discover`)
     Fit the base model; then repeat: diagnose the residuals (:mod:`jaxflex.diagnosis`), score-test
     every candidate not yet in the model (significant at ``alpha/m``, Bonferroni over the ``m``
     candidates), refit the best few (warm start, a 1-D profile of the new parameters, then
-    Levenberg–Marquardt of all), confirm each by the likelihood-ratio test ``LR = C₀ − C₁`` at
-    ``alpha/m`` and a falling BIC (``C + d·ln N``), and add the one with the largest LR. The
-    score test is local: when the misfit is too large for a first-order picture and no refitted
-    candidate explained most of it (:data:`MIN_EXPLAINED`) while the residuals are not noise,
-    each other candidate's 1-D profile (the fitted parameters re-optimised to first order) is
-    scanned, and every one the scan finds is refitted. Ties are real: a delay and a
+    Levenberg–Marquardt of all; where base parameters lie on a bound, having compensated the
+    missing effect as far as they could, also from where the run started — the given start or, from
+    scratch, the search's centre — its profile taken there), confirm each by the likelihood-ratio
+    test ``LR = C₀ − C₁`` at ``alpha/m`` and a falling BIC (``C + d·ln N``), and add the one with
+    the largest LR. The score test is local: when the misfit is too large for a first-order picture
+    and no refitted candidate explained most of it (:data:`MIN_EXPLAINED`) while the residuals are
+    not noise, each other candidate's 1-D profile (the fitted parameters re-optimised to first
+    order) is scanned, and every one the scan finds is refitted. Ties are real: a delay and a
     first-order lag have the same derivative at their null; the refits tell them apart. Stop when
-    no candidate is significant and confirmed. An effect is kept only if the final residuals
-    are consistent with the noise, or it explained most (:data:`MIN_EXPLAINED`) of the misfit
-    above the noise when it was added, or it lowered the error on held-out records (the mean
-    over the channels; a real rig always keeps some misfit no candidate explains); otherwise it is
-    withdrawn, and whatever the residuals still hold is reported as ``unexplained`` — where in
-    time and frequency, and how large.
+    no candidate is significant and confirmed. An effect is kept only if the final residuals are
+    consistent with the noise, or it explained most (:data:`MIN_EXPLAINED`) of the misfit above the
+    noise when it was added, or it lowered the error on held-out records (the mean over the
+    channels; a real rig always keeps some misfit no candidate explains); otherwise it is
+    withdrawn, and whatever the residuals still hold is reported as ``unexplained`` — where in time
+    and frequency, and how large.
 
 Claims
     What the report says about each candidate (explains, withdrawn, not added and why, the

@@ -97,6 +97,7 @@ class Engine:
               fixed: Mapping[str, float] | None = None,
               weights: Mapping[str, float] | None = None,
               channels: Sequence[str] = OUTPUT_COLUMNS,
+              anchor: Mapping[str, float] | None = None,
               record_start: tuple[str, int] = ("rest", DEFAULT_MODES)) -> Engine:
         """The engine testing ``candidates`` on ``model`` over the records' ``channels`` (the
         simulator outputs they measure); the channels' noise levels are the given ones, the
@@ -104,9 +105,10 @@ class Engine:
         (:func:`jaxflex.diagnosis.estimate_noise`). ``bounds``, ``fixed`` and ``weights`` are
         :func:`jaxflex.identification.identify`'s (:meth:`Universe.build`); a channel's weight
         ``w`` divides its noise level by ``√w`` (it counts ``w`` times in every fit and test),
-        weight 0 leaves it out. ``record_start`` is where the records start, an initial-state option
-        and its modes (:mod:`jaxflex.initial`): each record's state is estimated with the
-        parameters in every fit and test.
+        weight 0 leaves it out. ``anchor`` (default ``params``) is where a refit sends base
+        parameters left on a bound (:meth:`_release_bounds`). ``record_start`` is where the
+        records start, an initial-state option and its modes (:mod:`jaxflex.initial`): each
+        record's state is estimated with the parameters in every fit and test.
 
         The universe holds every library effect (and the given candidates) whichever are
         tested, so that every call on the same model and record layout — score tests, a refit,
@@ -141,7 +143,8 @@ class Engine:
         measured = np.concatenate([np.asarray(m).reshape(-1) for m in objective.measured])
         problem = Problem(objective, jnp.asarray(measured / sigma), jnp.asarray(sigma))
         tested = tuple(i for i, c in enumerate(pool) if c.name in names)
-        anchor = np.clip(universe.vector(params), universe.space.lower, universe.space.upper)
+        anchor = universe.vector(params if anchor is None else anchor)
+        anchor = np.clip(anchor, universe.space.lower, universe.space.upper)
         return cls(universe, problem, records, levels, half, half > 0, tested, anchor,
                    weights=weights, record_start=record_start)
 
@@ -243,8 +246,17 @@ class Engine:
         stay pinned on its bound after the effect is added: on the bound the gradient still
         points outwards, a local minimum of the constrained problem.
         """
-        if self.anchor is None:
+        trial = self.released(x, active)
+        if trial is None:
             return x
+        trial = self._lm(trial, active)
+        return trial if self.forward_cost(trial) < self.forward_cost(x) else x
+
+    def released(self, x: np.ndarray, active: Sequence[int]) -> np.ndarray | None:
+        """``x`` with its base parameters that lie on a bound put back at the anchor (``None``:
+        none does, away from the anchor)."""
+        if self.anchor is None:
+            return None
         u = self.universe
         base = np.arange(u.n_base)
         unit = np.asarray(u.space.to_unit(u.space.from_vector(np.where(
@@ -252,11 +264,10 @@ class Engine:
         pinned = base[(unit <= 1e-9) | (unit >= 1 - 1e-9)]
         pinned = [i for i in pinned if not np.isclose(x[i], self.anchor[i])]
         if not pinned:
-            return x
+            return None
         trial = x.copy()
         trial[pinned] = self.anchor[pinned]
-        trial = self._lm(trial, active)
-        return trial if self.forward_cost(trial) < self.forward_cost(x) else x
+        return trial
 
     def forward_cost(self, x: np.ndarray) -> float:
         """The fit cost at ``x`` (one simulation, no derivatives)."""

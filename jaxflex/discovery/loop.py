@@ -146,7 +146,7 @@ def _initial_params(records: Dataset, model: Model, initial: Any, budget: tuple[
         return {**full_params(model, initial), **fixed}
     from jaxflex.identification import identify
 
-    bounds = {k: v for k, v in (fit_options["bounds"] or {}).items() if k in model.space.names}
+    bounds = _model_bounds(model, fit_options["bounds"])
     channels = fit_options["channels"]
     weights = _base_weights(records, fit_options["noise"], fit_options["weights"], channels)
     seeds = None
@@ -162,6 +162,26 @@ def _initial_params(records: Dataset, model: Model, initial: Any, budget: tuple[
                    channels=channels, initial_state=fit_options["initial_state"],
                    initial_modes=fit_options["initial_modes"])
     return full_params(model, fit)
+
+
+def _model_bounds(model: Model, bounds: Mapping[str, tuple[float, float]] | None
+                  ) -> dict[str, tuple[float, float]]:
+    """The given ``bounds`` of ``model``'s own parameters (the others bound effects)."""
+    return {k: v for k, v in (bounds or {}).items() if k in model.space.names}
+
+
+def _anchor(model: Model, initial: Any, start: Mapping[str, float], rigid,
+            bounds: Mapping[str, tuple[float, float]] | None) -> dict[str, Any]:
+    """Where a base parameter that a refit leaves on a bound is sent back to: the given start,
+    or, for a base model identified from scratch, the search's centre
+    (:func:`jaxflex.rigid.search_centre`). That fit's own values will not do: a parameter that
+    compensated the missing effect ended on its bound there already (a Rayleigh damping at its
+    maximum beside a compliant clamp) and would be sent back onto it."""
+    if initial is not None:
+        return dict(start)
+    from jaxflex.rigid import search_centre
+
+    return search_centre(rigid, model.space.with_bounds(_model_bounds(model, bounds)))
 
 
 def _channels(records: Dataset, channels: Sequence[str], model: Model) -> tuple[str, ...]:
@@ -270,6 +290,7 @@ def discover(
     start = _initial_params(records, model, initial, budget, seed, progress, rigid, fit_options)
     engine = Engine.build(model, cands, records, start, noise, bounds=bounds, fixed=fixed,
                           weights=weights, channels=channels,
+                          anchor=_anchor(model, initial, start, rigid, bounds),
                           record_start=(initial_state, initial_modes))
     u = engine.universe
     names = [c.name for c in u.candidates]
