@@ -440,5 +440,5 @@ def state_lines(states: Mapping[str, Mapping[str, float]],
 __all__ = ["DEFAULT_MODES", "INITIAL_STATES", "check_initial_modes", "check_initial_state",
            "check_record_length", "coordinate_names", "coordinate_units", "estimate_state",
            "gauss_newton", "initial_state_report", "input_period", "periodic_state",
-           "record_states", "simulate_from", "simulate_record", "start_state",
+           "record_states", "simulate_from", "simulate_record", "simulate_started", "start_state",
            "state_lines", "why_not_still"]
