@@ -39,7 +39,7 @@ lint: $(VENV)/.stamp-dev
 # Workers, notebook kernels and subprocesses share compiled programs through JAX's on-disk
 # cache. The strict documentation build runs first: a broken reference fails the tests.
 test: $(VENV)/.stamp-dev lint docs
-	$(TEST_ENV) $(PY) -m pytest -n $(PYTEST_WORKERS) --dist worksteal -m "not slow" tests
+	$(TEST_ENV) $(PY) -m pytest -n $(PYTEST_WORKERS) --dist worksteal -m "not slow" --durations=15 tests
 
 # Strict: any warning (an unresolved reference, a docstring mkdocstrings cannot read, a page
 # missing from the navigation, a public name missing from the API reference) fails the build.

@@ -126,6 +126,7 @@ def _offset_log(folder, tau_0: float):
     return path, start
 
 
+@pytest.mark.slow  # a discovery run; the fast set keeps one of its kind
 def test_discover_names_a_torque_offset_on_encoder_and_strain_gauge(tmp_path, capsys):
     """Voltage drive, encoder and root strain gauge (no accelerometer): discover fits the two
     channels the arm's sensors give, with their quantisation as noise model, and names the

@@ -355,6 +355,7 @@ def test_discover_holds_fixed_parameters_and_respects_bounds(payload_case):
     assert "beta" not in settings["bounds"]
 
 
+@pytest.mark.slow  # a discovery run; the fast set keeps one of its kind
 def test_discover_holds_effect_bounds_when_the_effect_is_added(payload_case):
     records, _, _ = payload_case
     report = discover(records, initial=START, fixed=HELD, bounds={"m_p": (0.01, 0.028)},
@@ -409,6 +410,7 @@ def test_the_base_search_uses_the_given_noise_levels(payload_case, monkeypatch, 
     assert seen["weights"] == pytest.approx(want, rel=1e-12) and seen["fixed"] == HELD
 
 
+@pytest.mark.slow  # a discovery run; the fast set keeps one of its kind
 def test_cli_discover_takes_identify_fitting_options_and_reproduces(payload_case, tmp_path):
     records, _, _ = payload_case
     files, initial = saved_case(records, tmp_path)

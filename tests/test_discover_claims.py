@@ -145,6 +145,7 @@ def test_a_hidden_payload_is_the_only_effect_that_explains():
         assert "not added" in e["explanation"]
 
 
+@pytest.mark.slow  # a discovery run; the fast set keeps one of its kind
 def test_a_hidden_delay_cites_the_lag_it_leaves():
     records, _, _ = one("delay", 0.008, seed=3)
     report = discover(records, holdout=_holdout("delay", 0.008), initial=START, noise=NOISE,

@@ -176,10 +176,12 @@ def test_clean_logger_records_add_nothing(tmp_path):
     run_clean(tmp_path, DEFAULT_CLEAN)
 
 
+@pytest.mark.slow  # a discovery run; the fast set keeps one of its kind
 def test_logger_records_name_a_hidden_payload(tmp_path):
     run_payload(tmp_path, DEFAULT_PAYLOAD)
 
 
+@pytest.mark.slow  # a discovery run; the fast set keeps one of its kind
 def test_radau_records_name_a_tilted_plane(tmp_path):
     records, floor = logger_records(tmp_path, DEFAULT_PAYLOAD, {"gravity": {"phi": TILT}},
                                     radau_outputs)
