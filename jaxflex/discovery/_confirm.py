@@ -59,16 +59,17 @@ def confirm(engine: Engine, x: np.ndarray, cost: float, active: Sequence[int],
     not end on its null-side bound. ``start``: a (slot, start vector) found already; otherwise
     each member of a profiled candidate is refitted and the best kept. Where base parameters of
     ``x`` lie on a bound (they compensated the missing effect as far as they could: a compliant
-    clamp's low first mode pins the Young's modulus at its minimum), the candidate is refitted
-    from their anchor too (:meth:`Engine.released`), its start profiled there: from ``x`` its
-    profile only adds what the compensation left, and the refit stays in that basin."""
+    clamp's low first mode pins the Young's modulus at its minimum) and the base model was
+    identified from scratch, the candidate is refitted from the search's centre too
+    (:meth:`Engine.released`), its start profiled there: from ``x`` its profile only adds what
+    the compensation left, and the refit stays in that basin."""
     u = engine.universe
     if start is not None:
         tries = [start]
     else:  # every member of a profile: the profiled cost may misjudge a large effect
         slots = [i for i, s in enumerate(u.slots) if s.candidate == candidate]
         tries = [(i, engine.profile_start(x, active, i, guess)[0]) for i in slots]
-    released = engine.released(x, active)
+    released = engine.released(x, active) if engine.centred else None
     if released is not None:
         tries.append(engine.start(released, active, candidate, guess))
     fits = [(engine.fit(x_start, list(active) + [slot]), slot) for slot, x_start in tries]

@@ -86,6 +86,7 @@ class Engine:
     quantised: np.ndarray  # per element: bool
     tested: tuple[int, ...] = ()  # the candidates (universe indices) to test and add
     anchor: np.ndarray | None = None  # the run's starting point: where pinned parameters return
+    centred: bool = False  # the anchor is a search's centre, not the fit itself: refit from it
     max_iterations: int = LM_STEPS
     weights: dict[str, float] = dataclasses.field(default_factory=dict)  # user channel weights
     record_start: tuple[str, int] = ("rest", DEFAULT_MODES)  # initial-state option, modes
@@ -106,7 +107,8 @@ class Engine:
         :func:`jaxflex.identification.identify`'s (:meth:`Universe.build`); a channel's weight
         ``w`` divides its noise level by ``√w`` (it counts ``w`` times in every fit and test),
         weight 0 leaves it out. ``anchor`` (default ``params``) is where a refit sends base
-        parameters left on a bound (:meth:`_release_bounds`). ``record_start`` is where the
+        parameters left on a bound (:meth:`_release_bounds`); a given one (a search's centre)
+        also makes confirmations refit each candidate from there. ``record_start`` is where the
         records start, an initial-state option and its modes (:mod:`jaxflex.initial`): each
         record's state is estimated with the parameters in every fit and test.
 
@@ -143,10 +145,11 @@ class Engine:
         measured = np.concatenate([np.asarray(m).reshape(-1) for m in objective.measured])
         problem = Problem(objective, jnp.asarray(measured / sigma), jnp.asarray(sigma))
         tested = tuple(i for i, c in enumerate(pool) if c.name in names)
+        centred = anchor is not None
         anchor = universe.vector(params if anchor is None else anchor)
         anchor = np.clip(anchor, universe.space.lower, universe.space.upper)
         return cls(universe, problem, records, levels, half, half > 0, tested, anchor,
-                   weights=weights, record_start=record_start)
+                   weights=weights, record_start=record_start, centred=centred)
 
     @staticmethod
     def make_universe(model: Model, candidates: Sequence[Candidate],

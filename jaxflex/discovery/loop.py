@@ -171,14 +171,14 @@ def _model_bounds(model: Model, bounds: Mapping[str, tuple[float, float]] | None
 
 
 def _anchor(model: Model, initial: Any, start: Mapping[str, float], rigid,
-            bounds: Mapping[str, tuple[float, float]] | None) -> dict[str, Any]:
+            bounds: Mapping[str, tuple[float, float]] | None) -> dict[str, Any] | None:
     """Where a base parameter that a refit leaves on a bound is sent back to: the given start,
     or, for a base model identified from scratch, the search's centre
     (:func:`jaxflex.rigid.search_centre`). That fit's own values will not do: a parameter that
     compensated the missing effect ended on its bound there already (a Rayleigh damping at its
     maximum beside a compliant clamp) and would be sent back onto it."""
     if initial is not None:
-        return dict(start)
+        return None  # the given start itself
     from jaxflex.rigid import search_centre
 
     return search_centre(rigid, model.space.with_bounds(_model_bounds(model, bounds)))
