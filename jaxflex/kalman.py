@@ -43,7 +43,7 @@ from jaxflex.model import Model
 from jaxflex.noise import Noise, noise_levels
 from jaxflex.objective import check_channels, check_records, fitted_channels, record_tuple
 from jaxflex.parameters import Params
-from jaxflex.simulation import Outputs, _with_readings, model_dynamics, read_channels
+from jaxflex.simulation import Outputs, model_dynamics, read_channels, with_readings
 
 
 class Filtered(NamedTuple):
@@ -91,7 +91,7 @@ def _step_and_output(model: Model, params: Params, dt: float, channels: Sequence
         return dynamics.to_vector(dynamics.advance(dynamics.from_vector(x), taus))
 
     def output(x, tau):
-        out = _with_readings(model, Outputs(*dynamics.observe(dynamics.from_vector(x), tau)))
+        out = with_readings(model, Outputs(*dynamics.observe(dynamics.from_vector(x), tau)))
         return read_channels(model, params, out, channels)
 
     x0 = dynamics.to_vector(dynamics.start(None))

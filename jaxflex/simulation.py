@@ -473,8 +473,8 @@ def simulate_core(
     _, out = jax.lax.scan(sample, state0, fine, unroll=SCAN_UNROLL)
     if return_states:
         out, states = out
-        return _with_readings(model, Outputs(*out)), states
-    return _with_readings(model, Outputs(*out))
+        return with_readings(model, Outputs(*out)), states
+    return with_readings(model, Outputs(*out))
 
 
 def model_dynamics(model: Model, params: Params, dt: float) -> Dynamics:
@@ -664,7 +664,7 @@ def read_channels(
     return jnp.stack([read[c] for c in channels])
 
 
-def _with_readings(model: Model, outputs: Outputs) -> Outputs:
+def with_readings(model: Model, outputs: Outputs) -> Outputs:
     """``outputs`` with each of the model's sensors' readings (none without sensors)."""
     if not model.sensors:
         return outputs
