@@ -59,7 +59,13 @@ from jaxflex.objective import build_objective  # noqa: E402
 from jaxflex.rigid import estimate_rigid, warm_start  # noqa: E402
 from jaxflex.signals import time_grid  # noqa: E402
 from jaxflex.simulation import simulate, simulate_core  # noqa: E402
-from jaxflex.synthetic import ENCODER_STEP, add_measurement_noise, make_records, quantise_angle  # noqa: E402
+from jaxflex.synthetic import (  # noqa: E402
+    ACCELEROMETER_SIGMA,
+    ENCODER_STEP,
+    add_noise,
+    make_records,
+    quantise_angle,
+)
 
 LIMITS = dict(max_torque=0.5, rms_torque=0.1, max_angle=1.5, max_speed=5.0)
 DURATION, DT = 2.0, 1e-3
@@ -99,7 +105,7 @@ def noisy_outputs(model, truth, torque, seed: int, sensor: str) -> tuple[np.ndar
         joint_angle=np.asarray(out.joint_angle),
         tip_acceleration=np.asarray(out.tip_acceleration),
     )
-    record = add_measurement_noise(record, seed, encoder_step=0.0)  # accelerometer only
+    record = add_noise(record, seed, {"tip_acceleration": ACCELEROMETER_SIGMA})
     rng = np.random.default_rng((seed, 1))
     if sensor == "white":
         white = rng.standard_normal(record.n_samples)

@@ -419,7 +419,7 @@ def fit_and_validate(
     fit = identify(fit_set, **identify_kwargs)
     comparison = compare(
         Dataset([*fit_set, *held_out]),
-        fit.model(),
+        fit.model,
         fit.params,
         fit_names=fit_set.names,
         t_end=t_end,

@@ -109,7 +109,7 @@ def validate_held_out(state: DemoState) -> DemoState:
     """Compare the fitted model with every record; the ones not fitted are held out."""
     fit = state.fit
     comparison = compare(
-        state.records, fit.model(), fit.params, fit_names=fit.record_names, **NOISE
+        state.records, fit.model, fit.params, fit_names=fit.record_names, **NOISE
     )
     state.echo("validation (fit on one record, the others held out):")
     state.echo(_indent(comparison.table()))

@@ -18,7 +18,7 @@ import numpy as np
 from jaxflex import initial as _initial
 from jaxflex._io import to_jsonable, write_json
 from jaxflex.arm import MAX_ELEMENTS
-from jaxflex.evolve import STRATEGIES
+from jaxflex.evolve import STRATEGIES, AbstractStrategy
 from jaxflex.model import Model
 from jaxflex.refine import Refinement
 from jaxflex.testbed import Testbed
@@ -93,9 +93,10 @@ class Fit:
     ``names`` are the identified ones, and ``intervals``/``std``/``covariance``/``correlation``
     refer to them (in that order for the matrices). ``cost`` is the final objective (weighted
     mean squared NRMSE, a fraction; see :mod:`jaxflex.objective`), ``cost_search`` the best the
-    evolutionary search found. ``model_description`` is the whole rig (drive, sensors, specs,
-    effects), so ``model()`` rebuilds the :class:`Model` exactly, whatever became of its arm
-    file.
+    evolutionary search found. ``model`` is the whole rig (drive, sensors, specs, effects),
+    kept in the fit file as its description (:attr:`model_description`), so a loaded fit has
+    its :class:`Model` exactly, whatever became of its arm file; ``search`` is the strategy
+    that found it.
 
     The nominal ``intervals`` assume the model is right and the noise white;
     ``robust_intervals`` (HAC, from the residuals themselves) hold without that, and
@@ -111,7 +112,7 @@ class Fit:
     params: dict[str, float]
     names: tuple[str, ...]
     fixed: dict[str, float]
-    model_description: dict[str, Any]
+    model: Model = field(compare=False)
     cost: float
     cost_search: float
     intervals: dict[str, tuple[float, float]]
@@ -140,13 +141,19 @@ class Fit:
     initial_state_intervals: dict[str, dict[str, tuple[float, float]]] = field(default_factory=dict)
 
     # --- use -------------------------------------------------------------------------------
-    def model(self) -> Model:
-        """The rig this fit belongs to, whole."""
-        return build_model(self.model_description)
+    @property
+    def model_description(self) -> dict[str, Any]:
+        """The rig as the fit file stores it (:func:`describe_model`)."""
+        return describe_model(self.model)
 
     @property
     def effects(self) -> tuple[str, ...]:
-        return tuple(e["name"] for e in self.model_description["effects"])
+        return self.model.effect_names
+
+    @property
+    def search(self) -> AbstractStrategy:
+        """The evolutionary strategy, with its settings, that found this fit."""
+        return STRATEGIES.create(self.method, **self.settings["strategy"])
 
     @property
     def n_params(self) -> int:
@@ -170,7 +177,7 @@ class Fit:
         from jaxflex.parameters import BASE_PARAMETERS
 
         units = {s.name: s.unit for s in BASE_PARAMETERS}
-        units.update({s.name: s.unit for s in self.model().space.specs})
+        units.update({s.name: s.unit for s in self.model.space.specs})
         pct = f"{100 * self.level:g} %"
         robust = bool(self.robust_intervals)
         lines = [
@@ -233,6 +240,9 @@ class Fit:
             value = getattr(self, f.name)
             if isinstance(value, (History, Refinement)):
                 value = value.to_dict()
+            if isinstance(value, Model):
+                data["model_description"] = self.model_description
+                continue
             data[f.name] = value
         if data["refinement"] is not None:  # times only under "timing": the rest reproduces
             data["refinement"] = {
@@ -258,7 +268,7 @@ class Fit:
             params={k: _float(v) for k, v in data["params"].items()},
             names=tuple(data["names"]),
             fixed={k: _float(v) for k, v in data["fixed"].items()},
-            model_description=dict(data["model_description"]),
+            model=build_model(data["model_description"]),
             cost=_float(data["cost"]),
             cost_search=_float(data["cost_search"]),
             intervals={k: (_float(v[0]), _float(v[1])) for k, v in data["intervals"].items()},

@@ -271,7 +271,7 @@ def identify(
         params=_ordered(objective, estimate),
         names=objective.names,
         fixed={n: float(v) for n, v in objective.fixed.items()},
-        model_description=describe_model(objective.model),
+        model=objective.model,
         cost=cost,
         cost_search=cost_search,
         intervals={} if unc is None else unc.intervals,

@@ -21,7 +21,7 @@ from jaxtyping import ArrayLike
 
 from jaxflex.data import Dataset, Record
 from jaxflex.model import Model
-from jaxflex.noise import Noise, noise_levels
+from jaxflex.noise import Noise, NoiseLevel, noise_levels
 from jaxflex.parameters import Params
 from jaxflex.signals import reference_input
 from jaxflex.simulation import OUTPUT_NAMES, simulate_readings
@@ -53,39 +53,20 @@ def quantise_angle(angle: ArrayLike, step: float = ENCODER_STEP) -> np.ndarray:
     return step * np.round(np.asarray(angle, dtype=np.float64) / step)
 
 
-def add_measurement_noise(
-    record: Record,
-    seed: Seed,
-    *,
-    encoder_step: float = ENCODER_STEP,
-    accel_sigma: float = ACCELEROMETER_SIGMA,
-) -> Record:
-    """``record`` as the testbed's sensors would read it: quantised angle, noisy acceleration.
+TESTBED_NOISE: dict[str, NoiseLevel] = {
+    "joint_angle": NoiseLevel.quantised(ENCODER_STEP),
+    "tip_acceleration": NoiseLevel(ACCELEROMETER_SIGMA),
+}
+"""The reference testbed's sensors: a 4096-count encoder and the accelerometer's white noise."""
 
-    Extra columns are left as they are (they are noise-free ground truth, if any).
-    """
+
+def add_noise(record: Record, seed: Seed, noise: Noise | None = None) -> Record:
+    """``record`` as sensors of the given noise levels (:data:`~jaxflex.noise.Noise`; default
+    :data:`TESTBED_NOISE`) would log it: a quantised level rounds its channel to the step, a
+    white one adds Gaussian noise (drawn in the order given, from ``seed``); channels not named
+    are left as they are (extra columns stay noise-free ground truth)."""
     seed = _check_seed(seed)
-    if not (math.isfinite(encoder_step) and encoder_step >= 0):
-        raise ValueError(f"encoder_step must be >= 0 rad, got {encoder_step!r}")
-    if not (math.isfinite(accel_sigma) and accel_sigma >= 0):
-        raise ValueError(f"accel_sigma must be >= 0 m/s², got {accel_sigma!r}")
-    rng = np.random.default_rng(seed)
-    angle = quantise_angle(record.joint_angle, encoder_step) if encoder_step else record.joint_angle
-    accel = record.tip_acceleration + accel_sigma * rng.standard_normal(record.n_samples)
-    note = f"noise: encoder step {encoder_step!r} rad, accelerometer sigma {accel_sigma!r} m/s^2"
-    return record.replace(
-        joint_angle=angle,
-        tip_acceleration=accel,
-        metadata=record.noted_metadata(note) | {"noise_seed": str(seed)},
-    )
-
-
-def add_noise(record: Record, noise: Noise, seed: Seed) -> Record:
-    """``record`` as sensors of the given noise levels (:data:`~jaxflex.noise.Noise`) would log
-    it: a quantised level rounds its channel to the step, a white one adds Gaussian noise
-    (drawn in the order given, from ``seed``); channels not named are left as they are."""
-    seed = _check_seed(seed)
-    levels = noise_levels(noise, record.columns)
+    levels = noise_levels(TESTBED_NOISE if noise is None else noise, record.columns)
     rng = np.random.default_rng(seed)
     noisy = {
         c: quantise_angle(record.channel(c), v.step) if v.kind == "quantised"
@@ -149,10 +130,8 @@ def make_records(
             "effects": ", ".join(model.effect_names) or "none",
         }
         record = simulated_record(model, values, name, time, torque, dt, extras, metadata)
-        if isinstance(noise, Mapping):
-            record = add_noise(record, noise, (seed, i))
-        elif noise:
-            record = add_measurement_noise(record, (seed, i))
+        if noise is not False:
+            record = add_noise(record, (seed, i), None if noise is True else noise)
         records.append(record)
     return Dataset(records)
 
@@ -203,7 +182,8 @@ __all__ = [
     "DEFAULT_INPUTS",
     "ENCODER_COUNTS",
     "ENCODER_STEP",
-    "add_measurement_noise",
+    "TESTBED_NOISE",
+    "add_noise",
     "make_records",
     "quantise_angle",
     "simulated_record",

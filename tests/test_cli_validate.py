@@ -9,7 +9,7 @@ import pytest
 
 from jaxflex.cli import main
 from jaxflex.data import RecordWarning, save_record
-from jaxflex.identification import Fit, History, describe_model
+from jaxflex.identification import Fit, History
 from jaxflex.model import Model
 from jaxflex.parameters import reference_parameters
 from jaxflex.synthetic import make_records
@@ -25,7 +25,7 @@ def write_fit(path, params=None, record_names=("triangular",), model=None):
         params=params,
         names=tuple(params),
         fixed={},
-        model_description=describe_model(model),
+        model=model,
         cost=0.0,
         cost_search=0.0,
         intervals={},

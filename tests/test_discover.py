@@ -507,7 +507,7 @@ def test_two_hidden_effects_are_both_found(pair):
 def test_discover_from_scratch_finds_the_payload():
     records, model, params = one("payload", 0.03, seed=41)
     report = discover(records, seed=0)
-    assert report.settings["initial"] == "differential evolution"
+    assert report.settings["initial"] == "identified"
     assert report.added == ("payload",)
     assert_at_noise_floor(report, noise_floor(records, model, params))
 

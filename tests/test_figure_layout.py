@@ -174,7 +174,7 @@ def test_fit_figure():
     spread = {"E": 0.002, "J_h": 0.004, "b_v": 0.4, "tau_c": 0.008, "alpha": 0.0, "beta": 0.09}
     best = np.geomspace(0.2, 0.07, 7)  # minor-tick labels on the log axis, as on the rig
     fit = Fit(
-        params=params, names=tuple(params), fixed={}, model_description={}, cost=1e-4,
+        params=params, names=tuple(params), fixed={}, model=Model(), cost=1e-4,
         cost_search=1e-3, intervals=intervals, std={}, covariance=np.zeros((0, 0)),
         correlation=np.zeros((0, 0)), noise={}, poorly_identifiable=("alpha", "b_v", "beta"),
         warnings=(), history=History(best, 2 * best, {k: np.full(7, v) for k, v in

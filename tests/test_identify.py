@@ -65,7 +65,7 @@ def test_noise_free_identification(clean, tmp_path):
     assert fit.settings["bounds"]["J_h"] == pytest.approx(list(BOUNDS["J_h"]))
     assert {"search", "search_compile", "refine", "uncertainty", "total"} <= set(fit.timing)
     assert fit.provenance["versions"]["jax"]
-    assert fit.model() == Model()
+    assert fit.model == Model() and fit.search == get_strategy("de", population=20, generations=12)
     assert "E" in fit.summary() and "refinement: successful" in fit.summary()
 
     # JSON round trip, no silent overwrite
@@ -83,7 +83,7 @@ def test_noise_free_identification(clean, tmp_path):
         loaded.identifiability["eigenvectors"], fit.identifiability["eigenvectors"]
     )
     assert loaded.settings == json.loads(json.dumps(fit.to_dict()["settings"]))
-    assert loaded.model() == fit.model()
+    assert loaded.model == fit.model and loaded.search == fit.search
     (tmp_path / "bad.json").write_text('{"format": "something else"}')
     with pytest.raises(ValueError, match="bad.json: not a jaxflex fit"):
         load_fit(tmp_path / "bad.json")

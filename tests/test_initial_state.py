@@ -25,7 +25,7 @@ from jaxflex.initial import (
 )
 from jaxflex.synthetic import (
     ENCODER_STEP,
-    add_measurement_noise,
+    add_noise,
     make_records,
     simulated_record,
 )
@@ -45,7 +45,7 @@ def _record(name: str, outputs: np.ndarray, torque: np.ndarray, seed: int | None
     """A record of joint angle and tip acceleration, with the testbed's sensor noise."""
     record = Record(time=DT * np.arange(torque.size), torque=torque, joint_angle=outputs[0],
                     tip_acceleration=outputs[1], name=name)
-    return record if seed is None else add_measurement_noise(record, seed)
+    return record if seed is None else add_noise(record, seed)
 
 
 @pytest.fixture(scope="module")

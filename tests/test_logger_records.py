@@ -251,7 +251,7 @@ def test_radau_records_name_a_compliant_clamp_from_scratch(tmp_path, logger, com
     records, floor = logger_records(tmp_path, logger,
                                     {"root_compliance": {"c_r": compliance}}, radau_outputs)
     report = discover(records)
-    assert report.settings["initial"] == "differential evolution"
+    assert report.settings["initial"] == "identified"
     if compliance == LOOSE_CLAMP:
         base = report.steps[1]
         softest = Model().space["E"].lower

@@ -20,7 +20,7 @@ from jaxflex.rigid import (
     warm_start,
 )
 from jaxflex.simulation import simulate
-from jaxflex.synthetic import add_measurement_noise, make_records
+from jaxflex.synthetic import add_noise, make_records
 
 LINK = testbed.Testbed().link_inertia
 # A stiff link (E at its upper bound, first mode 11 Hz) with a clearly visible viscous friction.
@@ -53,7 +53,7 @@ def noisy_record(torque, params, name="smooth", seed=0, dt=1e-3) -> Record:
         tip_acceleration=np.asarray(out.tip_acceleration),
         name=name,
     )
-    return add_measurement_noise(record, seed)
+    return add_noise(record, seed)
 
 
 @pytest.fixture(scope="module")

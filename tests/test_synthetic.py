@@ -11,7 +11,7 @@ from jaxflex.simulation import simulate
 from jaxflex.synthetic import (
     ACCELEROMETER_SIGMA,
     ENCODER_STEP,
-    add_measurement_noise,
+    add_noise,
     make_records,
     true_parameters,
 )
@@ -67,18 +67,24 @@ def test_seeds_reproduce_and_differ():
     assert abs(np.corrcoef(na, nb)[0, 1]) < 0.1
 
 
-def test_add_measurement_noise_on_a_record(clean):
+def test_add_noise_reads_a_record_through_the_testbed_sensors_or_given_ones(clean):
     record = clean["pulse"]
-    once = add_measurement_noise(record, seed=1)
-    again = add_measurement_noise(record, seed=1)
+    once = add_noise(record, seed=1)
+    again = add_noise(record, seed=1)
     np.testing.assert_array_equal(once.tip_acceleration, again.tip_acceleration)
-    silent = add_measurement_noise(record, seed=1, encoder_step=0.0, accel_sigma=0.0)
-    np.testing.assert_array_equal(silent.joint_angle, record.joint_angle)
+    counts = once.joint_angle / ENCODER_STEP
+    np.testing.assert_allclose(counts, np.round(counts), rtol=0, atol=1e-9)
+    assert np.std(once.tip_acceleration - record.tip_acceleration) == pytest.approx(
+        ACCELEROMETER_SIGMA, rel=0.1)
+    accelerometer_only = add_noise(record, seed=1, noise={"tip_acceleration": ACCELEROMETER_SIGMA})
+    np.testing.assert_array_equal(accelerometer_only.joint_angle, record.joint_angle)
+    np.testing.assert_array_equal(accelerometer_only.tip_acceleration, once.tip_acceleration)
+    silent = add_noise(record, seed=1, noise={})
     np.testing.assert_array_equal(silent.tip_acceleration, record.tip_acceleration)
     with pytest.raises(ValueError, match="seed"):
-        add_measurement_noise(record, seed=-1)
-    with pytest.raises(ValueError, match="accel_sigma"):
-        add_measurement_noise(record, seed=1, accel_sigma=-0.1)
+        add_noise(record, seed=-1)
+    with pytest.raises(ValueError, match="noise level of tip_acceleration must be positive"):
+        add_noise(record, seed=1, noise={"tip_acceleration": -0.1})
 
 
 def test_parameters_amplitudes_and_errors():

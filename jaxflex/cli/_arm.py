@@ -59,7 +59,7 @@ def rig_of(args: argparse.Namespace, fit=None) -> tuple[Model, str | None]:
     source = None if given is None else str(given)
     if fit is None:
         return (Model() if arm is None else arm), source
-    carried = fit.model()
+    carried = fit.model
     if arm is not None:
         own = {e.name for e in arm.effects}
         bare = carried.replace(effects=tuple(e for e in carried.effects if e.name in own))

@@ -171,7 +171,7 @@ def read_fit(option: str, path: str | os.PathLike, *, plain_parameters: bool = F
             model, params = Model(), {k: float(v) for k, v in data.items()}
         else:
             fit = load_fit(path)
-            model, params = fit.model(), fit.params
+            model, params = fit.model, fit.params
         model.space.validate(params)  # unknown, missing or out-of-range parameters
     except (ValueError, KeyError, TypeError) as exc:
         message = str(exc.args[0] if isinstance(exc, KeyError) and exc.args else exc)

@@ -126,7 +126,7 @@ def run(args: argparse.Namespace) -> int:
             from jaxflex.plots.identify import plot_fit
 
             save_figure(plot_fit(fit), plot[0], overwrite=args.overwrite)
-            comparison = compare(ready, fit.model(), fit.params, fit_names=fit.record_names,
+            comparison = compare(ready, fit.model, fit.params, fit_names=fit.record_names,
                                  t_end=None, channels=fit.settings["channels"])
             for i, path in enumerate(plot[1:]):
                 save_figure(plot_time(comparison, i), path, overwrite=args.overwrite)

@@ -119,7 +119,7 @@ def run(args: argparse.Namespace) -> int:
     from jaxflex._io import all_or_nothing
     from jaxflex.data import save_record
     from jaxflex.signals import reference_input
-    from jaxflex.synthetic import add_measurement_noise, simulated_record
+    from jaxflex.synthetic import add_noise, simulated_record
 
     rig, source = rig_of(args)
     if not rig.sensors and args.rest:
@@ -155,7 +155,7 @@ def run(args: argparse.Namespace) -> int:
         extras=("joint_velocity", "tip_deflection"), metadata=metadata,
     )
     if args.add_noise:
-        record = add_measurement_noise(record, args.seed)
+        record = add_noise(record, args.seed)
     with all_or_nothing():
         save_record(record, out, overwrite=args.overwrite)
         if plot:

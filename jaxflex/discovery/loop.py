@@ -29,6 +29,7 @@ from jaxflex.discovery.operations import full_params
 from jaxflex.discovery.report import Confirmation, DiscoveryFit, DiscoveryReport, Step
 from jaxflex.discovery.scores import ALPHA, ScoreResult
 from jaxflex.effects import AbstractEffect
+from jaxflex.evolve import AbstractStrategy, get_strategy
 from jaxflex.initial import DEFAULT_MODES, check_initial_modes, check_initial_state
 from jaxflex.model import Model
 from jaxflex.objective import (
@@ -134,13 +135,13 @@ def _base_weights(records: Dataset, noise: Noise | None, weights: Mapping[str, f
             for c, w in noise_weights(records, noise, channels).items()}
 
 
-def _initial_params(records: Dataset, model: Model, initial: Any, budget: tuple[int, int],
+def _initial_params(records: Dataset, model: Model, initial: Any, search: AbstractStrategy,
                     seed: int, progress: bool, rigid, fit_options: Mapping[str, Any]
                     ) -> dict[str, float]:
     """The starting fit of the base model: ``initial`` (fixed values put in), or
-    :func:`jaxflex.identification.identify` (differential evolution,
-    ``budget = (generations, population)``, seeded around the rigid-body estimate, then
-    Levenberg–Marquardt) with the run's bounds, fixed values and channel weights."""
+    :func:`jaxflex.identification.identify` (the ``search``, seeded around the rigid-body
+    estimate, then Levenberg–Marquardt) with the run's bounds, fixed values and channel
+    weights."""
     fixed = {k: float(v) for k, v in (fit_options["fixed"] or {}).items()}
     if initial is not None:
         return {**full_params(model, initial), **fixed}
@@ -154,12 +155,12 @@ def _initial_params(records: Dataset, model: Model, initial: Any, budget: tuple[
         from jaxflex.rigid import warm_start
 
         space = model.space.with_bounds(bounds)
-        units = warm_start(rigid, space, population=budget[1], seed=seed)
+        units = warm_start(rigid, space, population=search.population, seed=seed)
         seeds = [{k: float(v) for k, v in space.from_unit(u).items()} for u in units]
-    fit = identify(records, model, seed=seed, generations=budget[0], population=budget[1],
-                   progress=progress, init_population=seeds, intervals=False,
-                   bounds=bounds or None, fixed=fixed or None, weights=weights,
-                   channels=channels, initial_state=fit_options["initial_state"],
+    fit = identify(records, model, search=search, seed=seed, progress=progress,
+                   init_population=seeds, intervals=False, bounds=bounds or None,
+                   fixed=fixed or None, weights=weights, channels=channels,
+                   initial_state=fit_options["initial_state"],
                    initial_modes=fit_options["initial_modes"])
     return full_params(model, fit)
 
@@ -207,6 +208,7 @@ def discover(
     *,
     initial: Mapping[str, ArrayLike] | Any = None,
     budget: int | tuple[int, int] | None = None,
+    search: AbstractStrategy | None = None,
     noise: Noise | None = None,
     bounds: Mapping[str, tuple[float, float]] | None = None,
     fixed: Mapping[str, float] | None = None,
@@ -221,14 +223,15 @@ def discover(
 
     ``model`` is the starting structure (default: the reference testbed). ``initial`` is its
     fitted parameters (a mapping or a fit); without it the base model is identified from scratch
-    by differential evolution and Levenberg–Marquardt
-    (:func:`jaxflex.identification.identify`), with ``budget`` generations or
-    ``(generations, population)`` (default :data:`BUDGET`). ``alpha`` is the family-wise level
-    of each step, Bonferroni over the candidates. ``noise`` gives channels' noise levels, a
-    white σ in the channel's unit or a :class:`~jaxflex.diagnosis.NoiseLevel` (e.g.
-    ``{"joint_angle": 1e-4}``); the others are estimated from the first fit's residuals
-    (:func:`jaxflex.diagnosis.estimate_noise`), and the report states each level and how it was
-    obtained; where it gives every channel, the base model's search uses them too.
+    by ``search`` and Levenberg–Marquardt (:func:`jaxflex.identification.identify`): a strategy
+    object (``search=DE(population=40, generations=60)``), or differential evolution of
+    ``budget`` generations or ``(generations, population)`` (default :data:`BUDGET`).
+    ``alpha`` is the family-wise level of each step, Bonferroni over the candidates. ``noise``
+    gives channels' noise levels, a white σ in the channel's unit or a
+    :class:`~jaxflex.diagnosis.NoiseLevel` (e.g. ``{"joint_angle": 1e-4}``); the others are
+    estimated from the first fit's residuals (:func:`jaxflex.diagnosis.estimate_noise`), and
+    the report states each level and how it was obtained; where it gives every channel, the
+    base model's search uses them too.
 
     ``bounds``, ``fixed`` and ``weights`` are :func:`jaxflex.identification.identify`'s, validated
     by the same code: ``bounds`` replace the search box of base parameters and of effect
@@ -267,6 +270,10 @@ def discover(
     if len(budget) != 2 or min(budget) < 1:
         raise ValueError(f"budget={budget!r} must be generations or (generations, population)")
     budget = (int(budget[0]), int(budget[1]))
+    if search is None:
+        search = get_strategy("de", generations=budget[0], population=budget[1])
+    elif not isinstance(search, AbstractStrategy):
+        raise TypeError(f"search must be a strategy (jaxflex.evolve), got {type(search).__name__}")
     if channels is None:
         every = [*records, *(holdout or ())]
         channels = tuple(c for c in fitted_channels(records, model)
@@ -287,7 +294,7 @@ def discover(
     Engine.make_universe(model, cands, bounds, fixed, channels)
     check_weights(weights, channels)
     rigid = _rigid(records, model, channels)
-    start = _initial_params(records, model, initial, budget, seed, progress, rigid, fit_options)
+    start = _initial_params(records, model, initial, search, seed, progress, rigid, fit_options)
     engine = Engine.build(model, cands, records, start, noise, bounds=bounds, fixed=fixed,
                           weights=weights, channels=channels,
                           anchor=_anchor(model, initial, start, rigid, bounds),
@@ -392,8 +399,11 @@ def discover(
                   "max_steps": max_steps, "max_confirm": max_confirm, "seed": seed,
                   "channels": list(channels), "t_end": t_end,
                   "initial_state": initial_state, "initial_modes": initial_modes,
-                  "budget": budget if initial is None else None,
-                  "initial": "given" if initial is not None else "differential evolution",
+                  "budget": (search.generations, search.population)
+                  if initial is None else None,
+                  "search": None if initial is not None else
+                  {"method": type(search).__name__} | search.settings(),
+                  "initial": "given" if initial is not None else "identified",
                   "noise": {c: v.to_dict() for c, v in engine.noise.items()},
                   "bounds": {**{n: [u.space[n].lower, u.space[n].upper]
                                 for n in u.base_names},
