@@ -69,7 +69,7 @@ def test_results_record_a_name_as_the_name_and_a_file_as_its_absolute_path(tmp_p
 
 
 def test_a_fits_rig_matches_the_same_rig_given_by_name_or_by_file():
-    fit = SimpleNamespace(model=lambda: load_arm("quanser_rotflex"))
+    fit = SimpleNamespace(model=load_arm("quanser_rotflex"))
     for given in ("quanser_rotflex", str(arm_path("quanser_rotflex")), None):
         rig, source = rig_of(argparse.Namespace(arm=given, window=None), fit)
         assert rig == load_arm("quanser_rotflex") and source == given
