@@ -51,9 +51,11 @@ def profile_scan(engine: Engine, x: np.ndarray, active: Sequence[int],
 
 
 def confirm(engine: Engine, x: np.ndarray, cost: float, active: Sequence[int],
-            candidate: int, guess: Mapping[str, float], level: float,
-            start: tuple[int, np.ndarray] | None = None):
-    """Refit the model with one more candidate; its likelihood-ratio test at ``level``, BIC.
+            requests: Sequence[tuple[int, Mapping[str, float], tuple[int, np.ndarray] | None]],
+            level: float) -> list[tuple[Confirmation, int, np.ndarray, float]]:
+    """Refit the model with one more candidate, for each ``(candidate, guess, start)`` of
+    ``requests``: its likelihood-ratio test at ``level``, BIC; the refits side by side
+    (:meth:`Engine.fit_many`). Each gives ``(confirmation, slot, x1, cost1)``.
 
     Confirmed when the LR test rejects the null at ``level``, the BIC falls and the effect did
     not end on its null-side bound. ``start``: a (slot, start vector) found already; otherwise
@@ -64,16 +66,32 @@ def confirm(engine: Engine, x: np.ndarray, cost: float, active: Sequence[int],
     (:meth:`Engine.released`), its start profiled there: from ``x`` its profile only adds what
     the compensation left, and the refit stays in that basin."""
     u = engine.universe
-    if start is not None:
-        tries = [start]
-    else:  # every member of a profile: the profiled cost may misjudge a large effect
-        slots = [i for i, s in enumerate(u.slots) if s.candidate == candidate]
-        tries = [(i, engine.profile_start(x, active, i, guess)[0]) for i in slots]
     released = engine.released(x, active) if engine.centred else None
-    if released is not None:
-        tries.append(engine.start(released, active, candidate, guess))
-    fits = [(engine.fit(x_start, list(active) + [slot]), slot) for slot, x_start in tries]
-    (x1, cost1), slot = min(fits, key=lambda item: item[0][1])
+    tries = []  # (request, slot, start)
+    for n, (candidate, guess, start) in enumerate(requests):
+        if start is not None:
+            tries.append((n, *start))
+        else:  # every member of a profile: the profiled cost may misjudge a large effect
+            tries += [(n, i, engine.profile_start(x, active, i, guess)[0])
+                      for i, s in enumerate(u.slots) if s.candidate == candidate]
+        if released is not None:
+            tries.append((n, *engine.start(released, active, candidate, guess)))
+    fits = engine.fit_many([(x_start, list(active) + [slot]) for _, slot, x_start in tries])
+    out = []
+    for n, (candidate, _, _) in enumerate(requests):
+        (x1, cost1), slot = min(((fit, slot) for (m, slot, _), fit in zip(tries, fits,
+                                                                           strict=True)
+                                 if m == n), key=lambda item: item[0][1])
+        out.append((_confirmation(engine, cost, active, candidate, slot, x1, cost1, level),
+                    slot, x1, cost1))
+    return out
+
+
+def _confirmation(engine: Engine, cost: float, active: Sequence[int], candidate: int,
+                  slot: int, x1: np.ndarray, cost1: float, level: float) -> Confirmation:
+    """The likelihood-ratio test and BIC change of the refit ``x1`` (cost ``cost1``) of
+    ``candidate`` in ``slot`` against the fit of cost ``cost``."""
+    u = engine.universe
     specs = [u.space[n] for n in u.slots[slot].tested]
     lr = cost - cost1
     sub = ParameterSpace(specs)
@@ -81,7 +99,7 @@ def confirm(engine: Engine, x: np.ndarray, cost: float, active: Sequence[int],
     p = lr_test(lr, specs)
     delta_bic = len(u.slots[slot].names) * math.log(engine.n_samples) - lr  # every fitted one
     at_null = bool(np.all(unit < BOUND_TOL))
-    conf = Confirmation(
+    return Confirmation(
         effect=u.candidates[candidate].name,
         lr=lr,
         p_value=p,
@@ -94,5 +112,4 @@ def confirm(engine: Engine, x: np.ndarray, cost: float, active: Sequence[int],
         level=level,
         at_null=at_null,
     )
-    return conf, slot, x1, cost1
 

@@ -10,6 +10,7 @@ import math
 from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass
 
+import jax
 import jax.numpy as jnp
 import numpy as np
 
@@ -20,17 +21,28 @@ from jaxflex.diagnosis import (
     estimate_noise,
     noise_levels,
 )
-from jaxflex.discovery._universe import BLOCK, Problem, Universe, forward, jacobian_block
+from jaxflex.discovery._universe import (
+    BLOCK,
+    BLOCKS,
+    MANY,
+    Problem,
+    Universe,
+    forward,
+    forward_many,
+    jacobian_blocks,
+)
 from jaxflex.discovery.candidates import Candidate, candidate_set
 from jaxflex.discovery.report import DiscoveryFit
 from jaxflex.discovery.scores import ScoreResult, score_statistic
 from jaxflex.initial import DEFAULT_MODES, simulate_started
-from jaxflex.least_squares import bounded_least_squares_of
+from jaxflex.least_squares import bounded_least_squares_of_many
 from jaxflex.model import Model
 from jaxflex.objective import build_objective
+from jaxflex.parallel import LANES
 from jaxflex.parameters import ParameterSpace
 from jaxflex.records import OUTPUT_COLUMNS
-from jaxflex.simulation import Outputs
+from jaxflex.sensors import calibrated
+from jaxflex.simulation import Outputs, simulate_batch
 
 INNER_WEIGHT = 1e-2
 
@@ -42,9 +54,10 @@ PROFILE_POINTS = 13
 """Start values of a new effect's parameters tried before the refit (unit-box diagonal)."""
 
 
-GOLDEN_STEPS = 12
+PROFILE_ROUNDS = 2
 
-"""Golden-section steps refining the best start value."""
+"""Rounds refining the best start value: each evaluates :data:`MANY` points between the best
+one's neighbours in one batched call."""
 
 
 PATTERN_ROUNDS = 2
@@ -73,8 +86,9 @@ class Engine:
     """The universe over the records with the noise model; evaluates costs, Jacobians, fits.
 
     Every Jacobian of a run (score tests, each Levenberg–Marquardt step of each refit) comes
-    from the one compiled forward-mode block (``jacobian_block``); the refits' bounded
-    Levenberg–Marquardt (:func:`jaxflex.least_squares.bounded_least_squares_of`) calls it back.
+    from one compiled batch of forward-mode blocks (``jacobian_blocks``); the refits'
+    bounded Levenberg–Marquardt, several in lockstep
+    (:func:`jaxflex.least_squares.bounded_least_squares_of_many`), calls it back.
     Coordinates: ``φ = log x`` for active log-scale parameters, else ``x``.
     """
 
@@ -185,19 +199,33 @@ class Engine:
 
     def evaluate(self, x: np.ndarray, logflag: np.ndarray, cols: Sequence[int]):
         """(``ŷ/σ``, Jacobian columns ``∂(ŷ/σ)/∂φ`` for ``cols``) at ``x``."""
-        phi = np.where(logflag, np.log(np.where(logflag, x, 1.0)), x)
-        cols = list(cols)
-        d = len(x)
-        pred, blocks = None, []
-        for start in range(0, max(len(cols), 1), BLOCK):
-            chunk = cols[start:start + BLOCK]
-            tangents = np.zeros((BLOCK, d))
-            tangents[np.arange(len(chunk)), chunk] = 1.0
-            y, jt = jacobian_block(self.problem, jnp.asarray(phi), jnp.asarray(logflag),
-                                   jnp.asarray(tangents))
-            pred = np.asarray(y)
-            blocks.append(np.asarray(jt)[: len(chunk)].T)
-        return pred, np.concatenate(blocks, axis=1) if blocks else np.zeros((pred.size, 0))
+        return self.evaluate_many([(x, logflag, cols)])[0]
+
+    def evaluate_many(self, points: Sequence[tuple[np.ndarray, np.ndarray, Sequence[int]]]):
+        """:meth:`evaluate` at several ``(x, logflag, cols)``: their blocks of :data:`BLOCK`
+        columns, :data:`BLOCKS` to a batched call."""
+        d = len(self.universe.space)
+        blocks = []  # (point, number of columns, φ, logflag, tangents)
+        for k, (x, logflag, cols) in enumerate(points):
+            phi = np.where(logflag, np.log(np.where(logflag, x, 1.0)), x)
+            cols = list(cols)
+            for start in range(0, max(len(cols), 1), BLOCK):
+                chunk = cols[start:start + BLOCK]
+                tangents = np.zeros((BLOCK, d))
+                tangents[np.arange(len(chunk)), chunk] = 1.0
+                blocks.append((k, len(chunk), phi, logflag, tangents))
+        preds: list = [None] * len(points)
+        columns: list[list[np.ndarray]] = [[] for _ in points]
+        for start in range(0, len(blocks), BLOCKS):
+            group = blocks[start:start + BLOCKS]
+            padded = group + [group[0]] * (BLOCKS - len(group))
+            ys, jts = jacobian_blocks(self.problem, *(jnp.asarray(np.stack([b[i] for b in padded]))
+                                                      for i in (2, 3, 4)))
+            for (k, n, *_), y, jt in zip(group, np.asarray(ys), np.asarray(jts), strict=False):
+                preds[k] = y
+                columns[k].append(jt[:n].T)
+        return [(pred, np.concatenate(cols, axis=1))
+                for pred, cols in zip(preds, columns, strict=True)]
 
     def whitened(self, pred: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """(``u``, ``dz(u)``): the whitened residual and its part beyond quantisation."""
@@ -214,46 +242,79 @@ class Engine:
 
     # --- fitting ------------------------------------------------------------------------------
     def fit(self, x0: np.ndarray, active: Sequence[int]) -> tuple[np.ndarray, float]:
-        """Fit the base and ``active`` slot parameters from ``x0``; returns ``(x, C)``.
+        """Fit the base and ``active`` slot parameters from ``x0``; returns ``(x, C)``
+        (:meth:`fit_many` of one)."""
+        return self.fit_many([(x0, active)])[0]
+
+    def fit_many(self, starts: Sequence[tuple[np.ndarray, Sequence[int]]]
+                 ) -> list[tuple[np.ndarray, float]]:
+        """Fit the base and ``active`` slot parameters from each ``(x0, active)``; ``(x, C)``
+        of each.
 
         Levenberg–Marquardt, then a pattern search over each effect parameter (factors
         :data:`PATTERN`) and Levenberg–Marquardt again while that finds a lower cost: an effect
         may be piecewise smooth (a delay on a zero-order-hold grid has a kink at every
         sub-step), and a gradient method stops at a kink. Inactive candidates stay at their
-        nulls.
+        nulls. The fits run side by side: their Levenberg–Marquardt steps in lockstep (one
+        batched Jacobian for all), their pattern trials as one batch of simulations.
         """
+        if not starts:
+            return []
         u = self.universe
-        x = self._lm(x0, active)
-        effect_cols = [i for s in active for i in u.index(u.slots[s].names)]
+        actives = [list(active) for _, active in starts]
+        xs = self._lm_many([x0 for x0, _ in starts], actives)
+        effect_cols = [[i for s in active for i in u.index(u.slots[s].names)]
+                       for active in actives]
+        factors = np.asarray(PATTERN)
+        pending = [k for k, cols in enumerate(effect_cols) if cols]
         for _ in range(PATTERN_ROUNDS):
-            base_cost = self.forward_cost(x)
-            best, best_cost = x, base_cost
-            for i in effect_cols:
-                for factor in PATTERN:
-                    xt = best.copy()
-                    xt[i] = np.clip(best[i] * factor, u.space.lower[i], u.space.upper[i])
-                    c = self.forward_cost(xt)
-                    if c < best_cost:
-                        best, best_cost = xt, c
-            if not best_cost < base_cost * (1 - LM_RTOL):
+            if not pending:
                 break
-            x = self._lm(best, active)
-        x = self._release_bounds(x, active)
-        pred = np.asarray(forward(self.problem, jnp.asarray(x)))
-        return x, self.stat_cost(pred)
+            best = {k: xs[k] for k in pending}
+            base_cost: dict[int, float] = {}
+            best_cost: dict[int, float] = {}
+            for j in range(max(len(effect_cols[k]) for k in pending)):
+                members = [k for k in pending if j < len(effect_cols[k])]
+                trials = []
+                for k in members:  # the factors on one parameter of each fit
+                    i = effect_cols[k][j]
+                    trial = np.repeat(best[k][None], len(factors) + 1, axis=0)
+                    trial[1:, i] = np.clip(best[k][i] * factors, u.space.lower[i],
+                                           u.space.upper[i])
+                    trials.append(trial)
+                costs = self.forward_costs(np.concatenate(trials)).reshape(len(members), -1)
+                for k, trial, cost in zip(members, trials, costs, strict=True):
+                    base_cost.setdefault(k, float(cost[0]))
+                    best[k], best_cost[k] = trial[int(np.argmin(cost))], float(np.min(cost))
+            pending = [k for k in pending if best_cost[k] < base_cost[k] * (1 - LM_RTOL)]
+            refits = self._lm_many([best[k] for k in pending], [actives[k] for k in pending])
+            for k, x in zip(pending, refits, strict=True):
+                xs[k] = x
+        xs = self._release_bounds(xs, actives)
+        return [(x, self.stat_cost(pred))
+                for x, pred in zip(xs, self.predicted_many(np.stack(xs)), strict=True)]
 
-    def _release_bounds(self, x: np.ndarray, active: Sequence[int]) -> np.ndarray:
-        """Refit once more with base parameters that ended on a bound put back at their start.
+    def _release_bounds(self, xs: list[np.ndarray], actives: Sequence[Sequence[int]]
+                        ) -> list[np.ndarray]:
+        """Each fit refitted once more with its base parameters that ended on a bound put back
+        at their start, kept where that lowers its cost.
 
         A parameter that compensated a missing effect (a viscous friction pushed to zero) can
         stay pinned on its bound after the effect is added: on the bound the gradient still
         points outwards, a local minimum of the constrained problem.
         """
-        trial = self.released(x, active)
-        if trial is None:
-            return x
-        trial = self._lm(trial, active)
-        return trial if self.forward_cost(trial) < self.forward_cost(x) else x
+        trials = {k: trial for k, (x, active) in enumerate(zip(xs, actives, strict=True))
+                  if (trial := self.released(x, active)) is not None}
+        if not trials:
+            return xs
+        keys = list(trials)
+        refits = self._lm_many([trials[k] for k in keys], [actives[k] for k in keys])
+        costs = self.forward_costs(np.stack(refits + [xs[k] for k in keys]))
+        out = list(xs)
+        for n, (k, refit) in enumerate(zip(keys, refits, strict=True)):
+            if costs[n] < costs[len(keys) + n]:
+                out[k] = refit
+        return out
 
     def released(self, x: np.ndarray, active: Sequence[int]) -> np.ndarray | None:
         """``x`` with its base parameters that lie on a bound put back at the anchor (``None``:
@@ -277,6 +338,22 @@ class Engine:
         cost = self.fit_cost(np.asarray(forward(self.problem, jnp.asarray(x))))
         return cost if math.isfinite(cost) else math.inf
 
+    def predicted_many(self, xs: np.ndarray) -> np.ndarray:
+        """``ŷ/σ`` at each row of ``xs``: batched simulations, :data:`MANY` at a time (a last
+        short batch padded with its first row, so that one compiled size serves them all)."""
+        xs = np.asarray(xs, dtype=float)
+        out = []
+        for start in range(0, len(xs), MANY):
+            chunk = xs[start:start + MANY]
+            padded = np.concatenate([chunk, np.repeat(chunk[:1], MANY - len(chunk), axis=0)])
+            out.append(np.asarray(forward_many(self.problem, jnp.asarray(padded)))[: len(chunk)])
+        return np.concatenate(out)
+
+    def forward_costs(self, xs: np.ndarray) -> np.ndarray:
+        """The fit costs at the rows of ``xs`` (:meth:`predicted_many`); non-finite → ``inf``."""
+        costs = np.array([self.fit_cost(p) for p in self.predicted_many(xs)])
+        return np.where(np.isfinite(costs), costs, np.inf)
+
     def _system(self, pred: np.ndarray, jac: np.ndarray | None):
         """Fit residual vector ``[dz(u), √ε·u_quantised]`` and its Jacobian (``None`` if
         ``jac`` is)."""
@@ -288,9 +365,11 @@ class Engine:
         outside = (np.abs(uu) > self.halfwidth).astype(float)
         return r, -np.concatenate([outside[:, None] * jac, inner[:, None] * jac])
 
-    def _lm(self, x0: np.ndarray, active: Sequence[int]) -> np.ndarray:
-        """Levenberg–Marquardt of the base and ``active`` parameters on the bounds
-        (:func:`jaxflex.least_squares.bounded_least_squares_of`, on :meth:`_system`).
+    def _lm_many(self, starts: Sequence[np.ndarray], actives: Sequence[Sequence[int]]
+                 ) -> list[np.ndarray]:
+        """Levenberg–Marquardt of the base and ``active`` parameters on the bounds from each
+        start, in lockstep (:func:`jaxflex.least_squares.bounded_least_squares_of_many` on
+        :meth:`_system`; the fits of as many columns together).
 
         The coordinates are the physical values over their starting magnitudes: in log
         coordinates a parameter pushed against a lower bound near zero (a friction term that
@@ -298,6 +377,42 @@ class Engine:
         fitted columns are padded with held ones to a multiple of ``BLOCK``, so that one
         compiled solve serves every fitted set of that size.
         """
+        problems = [self._lm_problem(x0, active)
+                    for x0, active in zip(starts, actives, strict=True)]
+        out = [p["x"] for p in problems]
+        sizes: dict[int, list[int]] = {}
+        for k, p in enumerate(problems):
+            sizes.setdefault(len(p["index"]), []).append(k)
+        for members in sizes.values():
+            group = [problems[k] for k in members]
+
+            def systems(points: np.ndarray, group=group) -> tuple[np.ndarray, np.ndarray]:
+                at = []
+                for p, point in zip(group, points, strict=True):
+                    xt = p["x"].copy()
+                    xt[p["index"]] = point * p["scales"]
+                    at.append((xt, np.zeros(len(xt), bool), p["index"]))
+                done = [self._system(pred, jac * p["scales"])
+                        for p, (pred, jac) in zip(group, self.evaluate_many(at), strict=True)]
+                return np.stack([r for r, _ in done]), np.stack([j for _, j in done])
+
+            fits = bounded_least_squares_of_many(
+                systems, 2 * self.n_samples, np.stack([p["p0"] for p in group]),
+                np.stack([p["lower"] for p in group]), np.stack([p["upper"] for p in group]),
+                free=np.stack([p["free"] for p in group]), rtol=LM_RTOL, atol=LM_RTOL,
+                ftol=LM_RTOL, max_steps=self.max_iterations, marquardt=True,
+            )
+            for k, p, fit in zip(members, group, fits, strict=True):
+                if fit.cost < fit.cost_start:  # else x keeps its exact start values
+                    n = len(p["cols"])
+                    out[k] = p["x"].copy()
+                    out[k][p["cols"]] = fit.value[:n] * p["scales"][:n]
+        return out
+
+    def _lm_problem(self, x0: np.ndarray, active: Sequence[int]) -> dict[str, np.ndarray]:
+        """One start's problem for :meth:`_lm_many`: the start ``x`` (inactive candidates at
+        their nulls), the fitted ``cols`` padded with held ones to ``index``, its ``scales``,
+        the scaled start ``p0`` and box, and the ``free`` mask."""
         u = self.universe
         mask = u.active_mask(active)
         cols = np.flatnonzero(mask)
@@ -311,34 +426,22 @@ class Engine:
         index = np.concatenate([cols, held])
         scales = np.concatenate([scale, np.ones(len(held))])
         p0 = x[index] / scales
-
-        def system(p: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-            xt = x.copy()
-            xt[index] = p * scales
-            pred, jac = self.evaluate(xt, np.zeros_like(mask), index)
-            return self._system(pred, jac * scales)
-
-        fit = bounded_least_squares_of(
-            system, 2 * self.n_samples, p0,
-            np.concatenate([u.space.lower[cols] / scale, p0[len(cols):]]),
-            np.concatenate([u.space.upper[cols] / scale, p0[len(cols):]]),
-            free=np.arange(len(index)) < len(cols), rtol=LM_RTOL, atol=LM_RTOL, ftol=LM_RTOL,
-            max_steps=self.max_iterations, marquardt=True,
-        )
-        if fit.cost < fit.cost_start:  # else x keeps its exact start values
-            x[cols] = fit.value[: len(cols)] * scale
-        return x
+        return {"x": x, "cols": cols, "index": index, "scales": scales, "p0": p0,
+                "lower": np.concatenate([lower / scale, p0[len(cols):]]),
+                "upper": np.concatenate([upper / scale, p0[len(cols):]]),
+                "free": np.arange(len(index)) < len(cols)}
 
     def profile_start(self, x: np.ndarray, active: Sequence[int], slot: int,
                       guess: Mapping[str, float]) -> tuple[np.ndarray, float]:
         """Start values of a new slot's parameters (the others kept at ``x``) and the profiled
         cost there.
 
-        A profile along the diagonal of the new parameters' unit box (a grid, the score test's
-        one-step estimate, then golden-section refinement) of the cost with the fitted
-        parameters re-optimised to first order: the residual is projected off the span of
-        their Jacobian at ``x``. Without that, parameters that compensated the missing effect
-        would pull its start towards the null.
+        A profile along the diagonal of the new parameters' unit box (a grid and the score
+        test's one-step estimate, then :data:`PROFILE_ROUNDS` finer grids around the best
+        point, each one batched call) of the cost with the fitted parameters re-optimised to
+        first order: the residual is projected off the span of their Jacobian at ``x``.
+        Without that, parameters that compensated the missing effect would pull its start
+        towards the null.
         """
         u = self.universe
         idx = u.index(u.slots[slot].tested)
@@ -350,38 +453,32 @@ class Engine:
         q, rr = np.linalg.qr(jf / np.where(norms > 0, norms, 1.0))
         q = q[:, np.abs(np.diag(rr)) > 1e-10]
 
-        def cost_at(t):
-            xt = x.copy()
-            xt[idx] = np.asarray(sub.to_vector(sub.from_unit(np.full(len(idx), t))))
-            r, _ = self._system(np.asarray(forward(self.problem, jnp.asarray(xt))), None)
-            r = r - q @ (q.T @ r)
-            cost = float(r @ r)
-            return cost if math.isfinite(cost) else math.inf, xt
+        def at(ts: np.ndarray) -> np.ndarray:
+            xs = np.repeat(x[None], len(ts), axis=0)
+            units = np.repeat(np.asarray(ts, dtype=float)[:, None], len(idx), axis=1)
+            xs[:, idx] = np.asarray(sub.to_vector(sub.from_unit(units)))
+            return xs
+
+        def costs_at(ts: np.ndarray) -> np.ndarray:
+            r = np.stack([self._system(p, None)[0] for p in self.predicted_many(at(ts))])
+            r = r - (r @ q) @ q.T
+            costs = np.einsum("ij,ij->i", r, r)
+            return np.where(np.isfinite(costs), costs, np.inf)
 
         grid = np.linspace(0.0, 1.0, PROFILE_POINTS)
-        costs = [cost_at(t)[0] for t in grid]
         est = np.array([guess.get(o, np.nan) for o in u.slots[slot].tested_own])
         if np.all(np.isfinite(est)) and np.all(est > sub.lower) and np.all(est < sub.upper):
-            t_est = float(np.mean(np.asarray(sub.to_unit(sub.from_vector(est)))))
-            grid, costs = np.append(grid, t_est), costs + [cost_at(t_est)[0]]
-            order = np.argsort(grid)
-            grid, costs = grid[order], [costs[i] for i in order]
+            grid = np.append(grid, float(np.mean(np.asarray(sub.to_unit(sub.from_vector(est))))))
+        costs = costs_at(grid)
+        for _ in range(PROFILE_ROUNDS):  # between the best point's neighbours, MANY at a time
+            order = np.argsort(grid, kind="stable")
+            grid, costs = grid[order], costs[order]
+            k = int(np.argmin(costs))
+            inner = np.linspace(grid[max(k - 1, 0)], grid[min(k + 1, len(grid) - 1)], MANY + 2)
+            grid = np.concatenate([grid, inner[1:-1]])
+            costs = np.concatenate([costs, costs_at(inner[1:-1])])
         k = int(np.argmin(costs))
-        lo, hi = grid[max(k - 1, 0)], grid[min(k + 1, len(grid) - 1)]
-        ratio = (math.sqrt(5.0) - 1.0) / 2.0
-        a, b = hi - ratio * (hi - lo), lo + ratio * (hi - lo)
-        fa, fb = cost_at(a)[0], cost_at(b)[0]
-        for _ in range(GOLDEN_STEPS):
-            if fa < fb:
-                hi, b, fb = b, a, fa
-                a = hi - ratio * (hi - lo)
-                fa = cost_at(a)[0]
-            else:
-                lo, a, fa = a, b, fb
-                b = lo + ratio * (hi - lo)
-                fb = cost_at(b)[0]
-        best = min([(costs[k], grid[k]), (fa, a), (fb, b)])
-        return cost_at(best[1])[1], best[0]
+        return at(grid[k:k + 1])[0], float(costs[k])
 
     def start(self, x: np.ndarray, active: Sequence[int], candidate: int,
               guess: Mapping[str, float], with_cost: bool = False):
@@ -396,6 +493,23 @@ class Engine:
     def predictions(self, x: np.ndarray, records: Dataset) -> tuple[Outputs, ...]:
         return simulate_all(self.universe, x, records, self.record_start,
                             self.problem.objective.channels)
+
+    def predictions_many(self, xs: Sequence[np.ndarray], records: Dataset
+                         ) -> list[tuple[Outputs, ...]]:
+        """:meth:`predictions` at each of ``xs``: from rest, each record's runs are one batched
+        simulation (rows padded to a multiple of :data:`jaxflex.parallel.LANES`, so that few
+        sizes compile); from an estimated state, one run after another."""
+        if self.record_start[0] != "rest" or len(xs) < 2:
+            return [self.predictions(x, records) for x in xs]
+        u = self.universe
+        params = [{**u.fixed, **dict(zip(u.space.names, map(float, x), strict=True))}
+                  for x in xs]
+        rows = len(params) + (-len(params) % LANES)
+        stacked = {k: np.array([p[k] for p in params] + [params[0][k]] * (rows - len(params)))
+                   for k in params[0]}
+        runs = [simulate_batch(u.model, stacked, r.input, r.dt) for r in records]
+        return [tuple(calibrated(u.model, p, jax.tree.map(lambda a, i=i: a[i], run))
+                      for run in runs) for i, p in enumerate(params)]
 
     def prediction_cost(self, predictions: Sequence[Outputs]) -> float:
         """``C`` of any predictions of the records (e.g. of another model)."""

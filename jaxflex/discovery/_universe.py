@@ -17,6 +17,7 @@ from jaxflex.discovery.candidates import Candidate, Variant
 from jaxflex.effects import AbstractEffect
 from jaxflex.model import Model
 from jaxflex.objective import Objective, free_specs
+from jaxflex.parallel import population_vmap
 from jaxflex.parameters import ParameterSpace
 
 
@@ -168,15 +169,39 @@ def _block_impl(problem: Problem, phi, logflag, tangents):
     return jax.vmap(lambda t: jax.jvp(pred, (phi,), (t,)), out_axes=(None, 0))(tangents)
 
 
-jacobian_block = eqx.filter_jit(_block_impl)
-"""Compiled residual Jacobian of a block of candidate columns (one compile per problem shape)."""
+def _blocks_impl(problem: Problem, phis, logflags, tangents):
+    """:func:`_block_impl` at each row of ``phis``, ``logflags``, ``tangents``, on one device:
+    the refits' Levenberg–Marquardt calls it back from its compiled loop, which holds a worker
+    of the device's runtime, so a program split across devices would wait for it forever."""
+    return jax.vmap(_block_impl, in_axes=(None, 0, 0, 0))(problem, phis, logflags, tangents)
+
+
+jacobian_blocks = eqx.filter_jit(_blocks_impl)
+"""Compiled residual Jacobian blocks, :data:`BLOCKS` per call (one compile per problem
+shape): every Jacobian of a discovery run, of one point or of refits in lockstep."""
 
 
 forward = eqx.filter_jit(lambda problem, x: problem.predicted(x))
 """Compiled prediction of a problem at the parameter vector ``x``."""
 
 
+forward_many = eqx.filter_jit(lambda problem, xs: population_vmap(problem.predicted, xs))
+"""Compiled predictions of a problem at the rows of ``xs``, one batched call."""
+
+
+MANY = 32
+
+"""Rows per batched prediction (:func:`forward_many`): one compiled size for every batch, split
+across two devices (:data:`jaxflex.parallel.MIN_PER_DEVICE`)."""
+
+
 BLOCK = 8
 
 """Tangent columns per forward-mode pass."""
+
+
+BLOCKS = 4
+
+"""Blocks of tangent columns per call of :func:`jacobian_blocks` (padded with copies)."""
+
 

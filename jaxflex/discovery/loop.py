@@ -308,15 +308,19 @@ def discover(
     if rigid is not None:
         steps.append(_rigid_step(engine, rigid, records, holdout, alpha, channels, t_end))
     added: dict[str, Any] = {}
+    held_out: dict[bytes, tuple[Outputs, ...]] = {}  # held-out predictions of the refits
     bar = Progress(range(max_steps + 1), label="discover", enabled=progress, each_stage=True)
     for _ in bar:
         preds = engine.predictions(x, records)
         diag = diagnose(records, preds, noise=engine.noise, alpha=alpha, channels=channels)
-        held_preds = engine.predictions(x, holdout) if holdout is not None else None
+        held_preds = None
+        if holdout is not None:
+            held_preds = held_out.get(x.tobytes()) or engine.predictions(x, holdout)
         nrmse, frf, held = _metrics(records, preds, holdout, held_preds, channels, t_end)
         ranking: list[ScoreResult] = []
         confirmations: list[Confirmation] = []
-        best = None
+        refits: list[tuple[int, np.ndarray, float]] = []  # (slot, x1, cost1) of each
+        best = None  # the index of the confirmed refit of largest LR
         if len(active) < max_steps and len(active) < len(cands):
             ranking = engine.score_tests(x, active, alpha)
             m = len(ranking)
@@ -329,18 +333,17 @@ def discover(
             scanned = False
             while True:
                 # the scan's drops are first-order: every candidate it finds is refitted
-                for r in contenders if scanned else contenders[:max_confirm]:
-                    conf, slot, x1, cost1 = confirm(engine, x, cost, active,
-                                                    names.index(r.effect), r.estimate, alpha / m,
-                                                    starts.get(r.effect))
-                    if holdout is not None:
-                        conf = dataclasses.replace(conf, holdout_error=_holdout_error(
-                            engine, x1, holdout, channels, t_end))
+                chosen = contenders if scanned else contenders[:max_confirm]
+                for conf, slot, x1, cost1 in confirm(
+                        engine, x, cost, active,
+                        [(names.index(r.effect), r.estimate, starts.get(r.effect))
+                         for r in chosen], alpha / m):
+                    if conf.confirmed and (best is None or conf.lr > confirmations[best].lr):
+                        best = len(confirmations)
                     confirmations.append(conf)
-                    if conf.confirmed and (best is None or conf.lr > best[0].lr):
-                        best = (conf, slot, x1, cost1)
+                    refits.append((slot, x1, cost1))
                 if scanned or diag.consistent_with_noise or (
-                        best is not None and best[0].explained >= MIN_EXPLAINED):
+                        best is not None and confirmations[best].explained >= MIN_EXPLAINED):
                     break
                 # the score tests' first-order picture named nothing that explains the misfit
                 # (an effect that moves a resonance far, compensated by a base parameter, scores
@@ -354,6 +357,13 @@ def discover(
                                     key=lambda r: -r.profile_drop)
                 skipped |= {r.effect: "full" for r in contenders}
                 scanned = True
+            if holdout is not None and refits:  # every refit's held-out run in one batch
+                ends = [x1 for _, x1, _ in refits]
+                held_out = {x1.tobytes(): p for x1, p in
+                            zip(ends, engine.predictions_many(ends, holdout), strict=True)}
+                confirmations = [dataclasses.replace(c, holdout_error=_holdout_error(
+                    holdout, held_out[x1.tobytes()], channels, t_end))
+                    for c, x1 in zip(confirmations, ends, strict=True)]
             ranking = _final_ranking(ranking, confirmations, u.candidates, diag, alpha / m,
                                      _mean_error(held), skipped)
         steps.append(Step(
@@ -363,11 +373,11 @@ def discover(
             p_value=added.get("p"), explained=added.get("explained"), predictions=preds,
             holdout_predictions=tuple(held_preds or ()),
         ))
-        found = f"confirmed {best[0].effect}" if best is not None else "none confirmed"
+        found = "none confirmed" if best is None else f"confirmed {confirmations[best].effect}"
         bar.set_message(f"{len(ranking)} candidates tested; {found}")
         if best is None:
             break
-        conf, slot, x, cost = best
+        conf, (slot, x, cost) = confirmations[best], refits[best]
         active = active + [slot]
         added = {"name": conf.effect, "lr": conf.lr, "p": conf.p_value,
                  "explained": conf.explained}
@@ -445,10 +455,9 @@ def _mean_error(held: Mapping[str, Any] | None) -> float | None:
     return float(np.mean(list(held["relative_error"].values())))
 
 
-def _holdout_error(engine: Engine, x: np.ndarray, holdout: Dataset, channels: Sequence[str],
+def _holdout_error(holdout: Dataset, preds: Sequence[Outputs], channels: Sequence[str],
                    t_end: float | None) -> float:
-    """The held-out relative error of the fit ``x``, the mean over the channels."""
-    preds = engine.predictions(x, holdout)
+    """The held-out relative error of predictions of ``holdout``, the mean over the channels."""
     rows = [compare_record(r, p, "held-out", t_end, FRFSettings(), None, None, channels)
             for r, p in zip(holdout, preds, strict=True)]
     return float(np.mean([np.nanmean([row.relative_error[o] for row in rows])
