@@ -15,7 +15,7 @@ DATA_ENV := $(if $(wildcard $(REALDATA)/README.md),JAXFLEX_DATA_DIR=$(REALDATA),
 # workers already fill the cores; see jaxflex.parallel), compiled programs shared through JAX's
 # on-disk cache, no progress bars.
 TEST_ENV := JAXFLEX_HOST_DEVICES=1 JAX_COMPILATION_CACHE_DIR=$(abspath $(VENV))/jax-cache \
-	JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS=0.2 JAXFLEX_PROGRESS=0 $(DATA_ENV)
+	JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS=0 JAXFLEX_PROGRESS=0 $(DATA_ENV)
 
 .PHONY: demo test lint docs notebooks bench clean
 

@@ -1,8 +1,8 @@
 """Benchmark: how long a user waits, command by command, cold and warm.
 
 Each command runs as a new user runs it: a fresh process, the installed ``jaxflex`` command
-line, a compilation cache that is empty (``cold``) and then the one the cold run left
-(``warm``). Measured:
+line with its own compilation cache (``JAXFLEX_CACHE_DIR``), empty (``cold``) and then as the
+cold run left it (``warm``). Measured:
 
 * ``discover`` on ROTFLEX: fitted on the square wave, held out on run 985, default budget;
 * ``discover`` on the bundled example (``jaxflex demo``'s data), from scratch;
@@ -15,6 +15,10 @@ machine: results are stored under ``--label`` (default: the tree's git revision)
 records come from ``jaxflex datasets`` (``JAXFLEX_DATA_DIR`` or the network).
 
     python benchmarks/time_to_answer.py [--tree PATH] [--label NAME] [--only NAME ...]
+                                        [--breakdown]
+
+``--breakdown`` also runs the warm ``discover`` on ROTFLEX once more in a process of its own with
+its phases timed (:func:`breakdown`): where the time goes, stored beside the timings.
 
 Results go to ``benchmarks/results/time_to_answer.json`` (merged with the labels already there).
 """
@@ -81,11 +85,63 @@ def timed(argv: list[str], env: dict[str, str], tree: Path) -> dict:
             "last_line": lines[-1] if lines else "", "load_average_before": os.getloadavg()[0]}
 
 
+PHASES = {  # (module, object, attribute) → phase of a discovery run
+    "Levenberg–Marquardt refits": ("jaxflex.discovery._engine", "Engine", "_lm_many"),
+    "profile scans and starts": ("jaxflex.discovery._engine", "Engine", "profile_start"),
+    "score tests": ("jaxflex.discovery._engine", "Engine", "score_tests"),
+    "base model's search and refinement": ("jaxflex.identification", None, "identify"),
+    "held-out and fitted runs": ("jaxflex.discovery._engine", "Engine", "predictions_many"),
+    "single runs": ("jaxflex.discovery._engine", "Engine", "predictions"),
+}
+
+BREAKDOWN = """
+import collections, importlib, json, sys, time
+import jax.monitoring
+phases, compiled = json.loads(sys.argv[1]), collections.defaultdict(float)
+jax.monitoring.register_event_duration_secs_listener(
+    lambda event, seconds, **_: compiled.__setitem__(event, compiled[event] + seconds))
+spent = collections.defaultdict(float)
+def timed(name, fn):
+    def wrapper(*args, **kwargs):
+        t0 = time.perf_counter()
+        try:
+            return fn(*args, **kwargs)
+        finally:
+            spent[name] += time.perf_counter() - t0
+    return wrapper
+for name, (module, owner, attribute) in phases.items():
+    target = importlib.import_module(module)
+    target = getattr(target, owner) if owner else target
+    setattr(target, attribute, timed(name, getattr(target, attribute)))
+from jaxflex.cli import main
+t0 = time.perf_counter()
+try:
+    main(sys.argv[2:])
+except SystemExit:
+    pass
+total = time.perf_counter() - t0
+events = {"tracing": "/jax/core/compile/jaxpr_trace_duration",
+          "lowering": "/jax/core/compile/jaxpr_to_mlir_module_duration",
+          "compiling and loading compiled programs": "/jax/core/compile/backend_compile_duration"}
+print(json.dumps({"total": total, "phases": dict(spent),
+                  "compilation": {k: compiled[v] for k, v in events.items()}}))
+"""
+
+
+def breakdown(argv: list[str], env: dict[str, str], tree: Path) -> dict:
+    """One run of ``jaxflex argv`` with the time of each discovery phase (:data:`PHASES`,
+    nested phases counted in each) and of tracing, lowering and compiling."""
+    done = subprocess.run([sys.executable, "-c", BREAKDOWN, json.dumps(PHASES), *argv],
+                          env=env, cwd=tree, capture_output=True, text=True, check=True)
+    return json.loads(done.stdout.strip().splitlines()[-1])
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--tree", type=Path, default=ROOT)
     parser.add_argument("--label")
     parser.add_argument("--only", nargs="*", default=None)
+    parser.add_argument("--breakdown", action="store_true")
     args = parser.parse_args()
     tree = args.tree.resolve()
     label = args.label or subprocess.run(
@@ -95,10 +151,9 @@ def main() -> None:
         scratch = Path(scratch)
         cache, data, out = scratch / "cache", scratch / "data", scratch / "out"
         out.mkdir()
-        env = {**os.environ, "PYTHONPATH": str(tree), "JAXFLEX_PROGRESS": "0",
-               "JAX_COMPILATION_CACHE_DIR": str(cache),
-               "JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS": "0.2"}
-        prepare_data(tree, data, {**env, "JAX_COMPILATION_CACHE_DIR": str(scratch / "other")})
+        env = {k: v for k, v in os.environ.items() if not k.startswith("JAX_")}
+        env |= {"PYTHONPATH": str(tree), "JAXFLEX_PROGRESS": "0", "JAXFLEX_CACHE_DIR": str(cache)}
+        prepare_data(tree, data, {**env, "JAXFLEX_CACHE_DIR": str(scratch / "other")})
         runs = {}
         for name, argv in commands(tree, data, out).items():
             if args.only and name not in args.only:
@@ -107,6 +162,8 @@ def main() -> None:
                 subprocess.run(["rm", "-rf", str(cache)], check=True)
             runs[name] = {"cold": timed(argv, env, tree), "warm": timed(argv, env, tree)}
             print(name, {k: v["seconds"] for k, v in runs[name].items()}, flush=True)
+            if args.breakdown and name == "discover_rotflex":
+                runs[name]["breakdown"] = breakdown(argv, env, tree)
     results = json.loads(RESULTS.read_text()) if RESULTS.exists() else {"revisions": {}}
     results.update(benchmark="time to answer: fresh processes, cold and warm compilation cache",
                    targets_seconds=TARGETS)

@@ -203,6 +203,27 @@ def cli_startup_table() -> str:
     return _table(["command", checkout, baseline], rows)
 
 
+def time_to_answer_table() -> str:
+    """Seconds a user waits, command by command, cold and warm compilation cache, each revision
+    measured in one session beside the targets (``time_to_answer.json``)."""
+    data = result("time_to_answer")
+    revisions = data["revisions"]
+    names = {"discover_rotflex": "`discover` ROTFLEX", "discover_example": "`discover` example",
+             "identify_rotflex": "`identify` ROTFLEX", "help": "`jaxflex --help`"}
+    rows = []
+    for command, name in names.items():
+        target = data["targets_seconds"].get(command, {})
+        row = [name, " / ".join(f"{target[k]:.0f}" if k in target else "–"
+                                for k in ("cold", "warm"))]
+        for revision in revisions.values():
+            run = revision["runs"].get(command)
+            row.append("–" if run is None else
+                       f"{run['cold']['seconds']:.1f} / {run['warm']['seconds']:.1f}")
+        rows.append(row)
+    return _table(["command", "target s (cold / warm)",
+                   *(f"{label} s" for label in revisions)], rows)
+
+
 def _pair(scores: dict) -> str:
     """θ / α NRMSE of one ROTFLEX prediction or simulation."""
     return " / ".join(f"{scores[c]:.0f} %" if scores[c] >= 100 else f"{scores[c]:.1f} %"
@@ -278,6 +299,7 @@ TABLES: dict[str, Callable[[], str]] = {
     "warm_start": warm_start_table,
     "discover": discover_table,
     "cli_startup": cli_startup_table,
+    "time_to_answer": time_to_answer_table,
     "real_rig": real_rig_table,
     "real_rig_prediction": real_rig_prediction_table,
     "real_rig_criteria": real_rig_criteria_table,

@@ -307,22 +307,13 @@ def bounded_least_squares(
     last accepted point if its cost is finite and below the start's, else the start.
     """
     solve = _bounded_solve_jit if solve is None else solve
-    p, lower, upper, free = _box(start, lower, upper, free)
-    return _solution(p, *solve(
-        residuals, args, p, lower, upper, free, rtol, atol, ftol, max_steps, marquardt
-    ))
-
-
-def _box(start, lower, upper, free):
-    """The start (fitted coordinates clipped into the box), box and mask as float64 arrays."""
     p = jnp.asarray(start, dtype=jnp.float64)
     lower, upper = jnp.asarray(lower, dtype=jnp.float64), jnp.asarray(upper, dtype=jnp.float64)
     free = jnp.ones(p.shape, bool) if free is None else jnp.asarray(free, dtype=bool)
-    return jnp.where(free, jnp.clip(p, lower, upper), p), lower, upper, free
-
-
-def _solution(p, end, result, steps, cost_start, cost, linearization) -> BoundedSolution:
-    """A solve's outcome: its end if the cost there is finite and below the start's."""
+    p = jnp.where(free, jnp.clip(p, lower, upper), p)
+    end, result, steps, cost_start, cost, linearization = solve(
+        residuals, args, p, lower, upper, free, rtol, atol, ftol, max_steps, marquardt
+    )
     cost_start, cost = float(cost_start), float(cost)
     cost_start = cost_start if math.isfinite(cost_start) else math.inf
     better = math.isfinite(cost) and cost < cost_start
@@ -340,29 +331,22 @@ def _solution(p, end, result, steps, cost_start, cost, linearization) -> Bounded
 System = Callable[[np.ndarray], tuple[np.ndarray, np.ndarray]]
 """``system(p)``: the residual vector and its Jacobian at ``p``, computed on the host."""
 
-Systems = Callable[[np.ndarray], tuple[np.ndarray, np.ndarray]]
-"""``systems(P)``: the residual vectors ``(K, m)`` and Jacobians ``(K, m, n)`` at the ``K``
-rows of ``P``, computed on the host in one go."""
-
-_SYSTEMS: dict[int, Systems] = {}
+_SYSTEMS: dict[int, System] = {}
 _TOKENS = itertools.count()
 
 
 def _run_system(token, p):
     # a callback runs under jax.default_device(its device): reset it, or every jitted function
     # the system calls compiles a second time for that context
-    p = np.asarray(p)
     with jax.default_device(None), jax.disable_jit(False):
-        r, jac = _SYSTEMS[int(np.ravel(token)[0])](p.reshape(-1, p.shape[-1]))
-    r, jac = np.asarray(r, dtype=np.float64), np.asarray(jac, dtype=np.float64)
-    return r.reshape(p.shape[:-1] + r.shape[1:]), jac.reshape(p.shape[:-1] + jac.shape[1:])
+        r, jac = _SYSTEMS[int(token)](np.asarray(p))
+    return np.asarray(r, dtype=np.float64), np.asarray(jac, dtype=np.float64)
 
 
 def _call_system(p, token, template):
-    # under vmap (several solves in lockstep) the callback takes every solve's point at once
     shapes = (jax.ShapeDtypeStruct(template.shape, p.dtype),
               jax.ShapeDtypeStruct(template.shape + p.shape, p.dtype))
-    return jax.pure_callback(_run_system, shapes, token, p, vmap_method="expand_dims")
+    return jax.pure_callback(_run_system, shapes, token, p, vmap_method="sequential")
 
 
 @jax.custom_jvp
@@ -380,14 +364,6 @@ def _host_residuals(p: Array, args: tuple) -> Array:
     return _system_residuals(p, *args)
 
 
-LOCKSTEP = 4
-"""Solves in lockstep run in groups of a multiple of this many
-(:func:`bounded_least_squares_of_many` pads with copies), so that few batch sizes compile."""
-
-_bounded_solve_many_jit = eqx.filter_jit(eqx.filter_vmap(
-    _bounded_solve, in_axes=(None, None, 0, 0, 0, 0, None, None, None, None, None)))
-
-
 def bounded_least_squares_of(system: System, size: int, start: ArrayLike, lower: ArrayLike,
                              upper: ArrayLike, **options) -> BoundedSolution:
     """:func:`bounded_least_squares` of a residual vector (length ``size``) and Jacobian that
@@ -396,75 +372,33 @@ def bounded_least_squares_of(system: System, size: int, start: ArrayLike, lower:
     The solve compiles without the model in it (a few seconds, once per size) and the
     caller's own compiled Jacobian serves it: discovery's forward-mode block, which its score
     tests compile anyway, instead of a second compilation of the simulator's derivatives.
+    On a single usable core the solve runs uncompiled instead: XLA's CPU runtime then has one
+    worker, which a compiled solve would hold while the system's compiled code waits for it.
     """
-    def systems(rows: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        r, jac = system(rows[0])
-        return np.asarray(r)[None], np.asarray(jac)[None]
-
-    return bounded_least_squares_of_many(systems, size, np.asarray(start)[None],
-                                         np.asarray(lower)[None], np.asarray(upper)[None],
-                                         **options)[0]
-
-
-def bounded_least_squares_of_many(systems: Systems, size: int, starts: ArrayLike,
-                                  lowers: ArrayLike, uppers: ArrayLike, *,
-                                  free: ArrayLike | None = None, rtol: float, atol: float,
-                                  ftol: float = 0.0, max_steps: int, marquardt: bool = False,
-                                  ) -> list[BoundedSolution]:
-    """:func:`bounded_least_squares_of` of ``K`` problems in lockstep (the rows of ``starts``,
-    ``lowers``, ``uppers`` and ``free``): every step calls ``systems`` back once with the
-    ``K`` points, so that the caller computes their Jacobians in one batched call. Each
-    problem's solve is the one it would have alone; the loop runs until the last has stopped.
-    ``K`` is padded to a multiple of :data:`LOCKSTEP` (copies whose residuals are zero).
-
-    On a single usable core the solve runs uncompiled: XLA's CPU runtime then has one worker,
-    which a compiled solve would hold while the system's compiled code waits for it.
-    """
-    starts = np.asarray(starts, dtype=float)
-    count = starts.shape[0]
-    rows = count + (-count % LOCKSTEP)
-
-    def padded(arrays):  # to ``rows`` solves, the extra ones copies of the first
-        arrays = np.asarray(arrays)
-        return np.concatenate([arrays, np.repeat(arrays[:1], rows - count, axis=0)])
-
-    def padded_systems(points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        r, jac = systems(points[:count])  # the copies: zero residuals, solved at once
-        r, jac = np.asarray(r), np.asarray(jac)
-        return (np.concatenate([r, np.zeros((rows - count, *r.shape[1:]))]),
-                np.concatenate([jac, np.zeros((rows - count, *jac.shape[1:]))]))
-
     token = next(_TOKENS)
-    _SYSTEMS[token] = padded_systems
-    free = np.ones(starts.shape, bool) if free is None else np.asarray(free, dtype=bool)
-    p, lower, upper, free = _box(padded(starts), padded(lowers), padded(uppers), padded(free))
-    args = (jnp.asarray(token), jnp.zeros(size))
+    _SYSTEMS[token] = system
     try:
+        args = (jnp.asarray(token), jnp.zeros(size))
         if usable_cores() > 1:
-            outcome = _bounded_solve_many_jit(_host_residuals, args, p, lower, upper, free,
-                                              rtol, atol, ftol, max_steps, marquardt)
-        else:
-            with jax.disable_jit():
-                outcome = eqx.filter_vmap(
-                    _bounded_solve, in_axes=(None, None, 0, 0, 0, 0) + (None,) * 5
-                )(_host_residuals, args, p, lower, upper, free, rtol, atol, ftol, max_steps,
-                  marquardt)
+            return bounded_least_squares(_host_residuals, args, start, lower, upper, **options)
+        with jax.disable_jit():
+            return bounded_least_squares(
+                _host_residuals, args, start, lower, upper, solve=_bounded_solve, **options
+            )
     finally:
         del _SYSTEMS[token]
-    return [_solution(p[k], *jax.tree.map(lambda a, k=k: a[k], outcome)) for k in range(count)]
+
 
 
 __all__ = [
     "RESULT_NAMES",
     "FIRST_DAMPING",
-    "LOCKSTEP",
     "STALL_STEPS",
     "BoxedDampedNewton",
     "BoundedLevenbergMarquardt",
     "BoundedSolution",
     "bounded_least_squares",
     "bounded_least_squares_of",
-    "bounded_least_squares_of_many",
     "dense_jacobian",
     "in_fit_words",
 ]

@@ -228,9 +228,7 @@ class _StubFit:
     def __init__(self, record_names):
         self.params = {k: float(v) for k, v in reference_parameters().items()}
         self.record_names = record_names
-
-    def model(self):
-        return Model()
+        self.model = Model()
 
 
 def test_fit_and_validate_fits_only_the_named_records(monkeypatch, records):

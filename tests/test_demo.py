@@ -11,6 +11,7 @@ from jaxflex._io import OutputExistsError
 from jaxflex.cli import main
 from jaxflex.data import load_dataset
 from jaxflex.demo import STEPS, planned_files, run_demo
+from jaxflex.model import Model
 from jaxflex.parameters import reference_parameters
 
 
@@ -19,11 +20,7 @@ class _TrueFit:
 
     params = {k: float(v) for k, v in reference_parameters().items()}
     record_names = ("triangular",)
-
-    def model(self):
-        from jaxflex.model import Model
-
-        return Model()
+    model = Model()
 
 
 def _known_fit(state):

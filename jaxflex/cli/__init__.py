@@ -139,9 +139,10 @@ def use_persistent_cache() -> None:
     """Keep compiled programs between runs of the command in JAX's on-disk cache, so a second
     run on records of the same layout starts computing at once: in ``$JAXFLEX_CACHE_DIR`` if
     set (empty: no cache), else ``$XDG_CACHE_HOME/jaxflex`` or ``~/.cache/jaxflex``, every
-    program that took over 0.2 s to compile (a search's generation steps take under JAX's
-    default of 1 s). JAX's own ``JAX_COMPILATION_CACHE_DIR`` wins when set; nothing changes
-    once JAX has compiled."""
+    program however quickly it compiled (JAX's default keeps those over 1 s: a run compiles a
+    couple of hundred small ones, several seconds together, that a second run would compile
+    again). JAX's own ``JAX_COMPILATION_CACHE_DIR`` wins when set; nothing changes once JAX
+    has compiled."""
     import os
     from pathlib import Path
 
@@ -156,7 +157,7 @@ def use_persistent_cache() -> None:
     if folder:
         jax.config.update("jax_compilation_cache_dir", folder)
         if "JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS" not in os.environ:
-            jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.2)
+            jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.0)
 
 
 def _on_sigterm(prefix: str):

@@ -23,19 +23,17 @@ from jaxflex.diagnosis import (
 )
 from jaxflex.discovery._universe import (
     BLOCK,
-    BLOCKS,
     MANY,
     Problem,
     Universe,
-    forward,
     forward_many,
-    jacobian_blocks,
+    jacobian_block,
 )
 from jaxflex.discovery.candidates import Candidate, candidate_set
 from jaxflex.discovery.report import DiscoveryFit
 from jaxflex.discovery.scores import ScoreResult, score_statistic
 from jaxflex.initial import DEFAULT_MODES, simulate_started
-from jaxflex.least_squares import bounded_least_squares_of_many
+from jaxflex.least_squares import bounded_least_squares_of
 from jaxflex.model import Model
 from jaxflex.objective import build_objective
 from jaxflex.parallel import LANES
@@ -70,6 +68,11 @@ PATTERN = (0.5, 0.8, 0.9, 0.95, 0.98, 0.99, 1.01, 1.02, 1.05, 1.1, 1.25, 2.0)
 """Factors a fit's pattern search tries on each effect parameter."""
 
 
+KEPT_POINTS = 16
+
+"""Points whose Jacobian columns the engine keeps (:meth:`Engine.evaluate_many`)."""
+
+
 LM_STEPS = 30
 
 """Levenberg–Marquardt steps per refit (each one Jacobian)."""
@@ -86,9 +89,9 @@ class Engine:
     """The universe over the records with the noise model; evaluates costs, Jacobians, fits.
 
     Every Jacobian of a run (score tests, each Levenberg–Marquardt step of each refit) comes
-    from one compiled batch of forward-mode blocks (``jacobian_blocks``); the refits'
-    bounded Levenberg–Marquardt, several in lockstep
-    (:func:`jaxflex.least_squares.bounded_least_squares_of_many`), calls it back.
+    from the one compiled forward-mode block (``jacobian_block``), its columns kept for the points
+    last evaluated; the refits' bounded Levenberg–Marquardt
+    (:func:`jaxflex.least_squares.bounded_least_squares_of`) calls it back.
     Coordinates: ``φ = log x`` for active log-scale parameters, else ``x``.
     """
 
@@ -104,6 +107,7 @@ class Engine:
     max_iterations: int = LM_STEPS
     weights: dict[str, float] = dataclasses.field(default_factory=dict)  # user channel weights
     record_start: tuple[str, int] = ("rest", DEFAULT_MODES)  # initial-state option, modes
+    _columns: dict = dataclasses.field(default_factory=dict, repr=False)  # Jacobians kept
 
     @classmethod
     def build(cls, model: Model, candidates: Sequence[Candidate], records: Dataset,
@@ -202,30 +206,39 @@ class Engine:
         return self.evaluate_many([(x, logflag, cols)])[0]
 
     def evaluate_many(self, points: Sequence[tuple[np.ndarray, np.ndarray, Sequence[int]]]):
-        """:meth:`evaluate` at several ``(x, logflag, cols)``: their blocks of :data:`BLOCK`
-        columns, :data:`BLOCKS` to a batched call."""
+        """:meth:`evaluate` at several ``(x, logflag, cols)``.
+
+        The columns are computed in ``x`` (a log coordinate's is ``x`` times it) and kept for
+        the last :data:`KEPT_POINTS` points, so that the score tests, the profiles and a
+        refit's first step at one point share them; the missing ones in blocks of
+        :data:`BLOCK`."""
         d = len(self.universe.space)
-        blocks = []  # (point, number of columns, φ, logflag, tangents)
-        for k, (x, logflag, cols) in enumerate(points):
-            phi = np.where(logflag, np.log(np.where(logflag, x, 1.0)), x)
-            cols = list(cols)
-            for start in range(0, max(len(cols), 1), BLOCK):
-                chunk = cols[start:start + BLOCK]
+        blocks = []  # (key, columns, x, tangents)
+        for x, _, cols in points:
+            key = np.asarray(x, dtype=float).tobytes()
+            pred, known = self._columns.setdefault(key, (None, {}))
+            missing = [c for c in dict.fromkeys(int(c) for c in cols) if c not in known]
+            if not missing and pred is not None:
+                continue
+            for start in range(0, max(len(missing), 1), BLOCK):
+                chunk = missing[start:start + BLOCK]
                 tangents = np.zeros((BLOCK, d))
                 tangents[np.arange(len(chunk)), chunk] = 1.0
-                blocks.append((k, len(chunk), phi, logflag, tangents))
-        preds: list = [None] * len(points)
-        columns: list[list[np.ndarray]] = [[] for _ in points]
-        for start in range(0, len(blocks), BLOCKS):
-            group = blocks[start:start + BLOCKS]
-            padded = group + [group[0]] * (BLOCKS - len(group))
-            ys, jts = jacobian_blocks(self.problem, *(jnp.asarray(np.stack([b[i] for b in padded]))
-                                                      for i in (2, 3, 4)))
-            for (k, n, *_), y, jt in zip(group, np.asarray(ys), np.asarray(jts), strict=False):
-                preds[k] = y
-                columns[k].append(jt[:n].T)
-        return [(pred, np.concatenate(cols, axis=1))
-                for pred, cols in zip(preds, columns, strict=True)]
+                blocks.append((key, chunk, np.asarray(x, dtype=float), tangents))
+        for key, chunk, x, tangents in blocks:
+            y, jt = jacobian_block(self.problem, jnp.asarray(x), jnp.asarray(tangents))
+            _, known = self._columns[key]
+            self._columns[key] = (np.asarray(y), known | dict(zip(chunk, np.asarray(jt),
+                                                                  strict=False)))
+        out = []
+        for x, logflag, cols in points:
+            pred, known = self._columns[np.asarray(x, dtype=float).tobytes()]
+            scale = np.where(logflag, x, 1.0)
+            out.append((pred, np.stack([known[int(c)] * scale[c] for c in cols], axis=1)
+                        if len(cols) else np.zeros((pred.size, 0))))
+        while len(self._columns) > KEPT_POINTS:
+            del self._columns[next(iter(self._columns))]
+        return out
 
     def whitened(self, pred: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """(``u``, ``dz(u)``): the whitened residual and its part beyond quantisation."""
@@ -255,8 +268,7 @@ class Engine:
         :data:`PATTERN`) and Levenberg–Marquardt again while that finds a lower cost: an effect
         may be piecewise smooth (a delay on a zero-order-hold grid has a kink at every
         sub-step), and a gradient method stops at a kink. Inactive candidates stay at their
-        nulls. The fits run side by side: their Levenberg–Marquardt steps in lockstep (one
-        batched Jacobian for all), their pattern trials as one batch of simulations.
+        nulls. The fits' pattern trials run as one batch of simulations.
         """
         if not starts:
             return []
@@ -335,8 +347,7 @@ class Engine:
 
     def forward_cost(self, x: np.ndarray) -> float:
         """The fit cost at ``x`` (one simulation, no derivatives)."""
-        cost = self.fit_cost(np.asarray(forward(self.problem, jnp.asarray(x))))
-        return cost if math.isfinite(cost) else math.inf
+        return float(self.forward_costs(np.asarray(x)[None])[0])
 
     def predicted_many(self, xs: np.ndarray) -> np.ndarray:
         """``ŷ/σ`` at each row of ``xs``: batched simulations, :data:`MANY` at a time (a last
@@ -368,8 +379,7 @@ class Engine:
     def _lm_many(self, starts: Sequence[np.ndarray], actives: Sequence[Sequence[int]]
                  ) -> list[np.ndarray]:
         """Levenberg–Marquardt of the base and ``active`` parameters on the bounds from each
-        start, in lockstep (:func:`jaxflex.least_squares.bounded_least_squares_of_many` on
-        :meth:`_system`; the fits of as many columns together).
+        start (:func:`jaxflex.least_squares.bounded_least_squares_of` on :meth:`_system`).
 
         The coordinates are the physical values over their starting magnitudes: in log
         coordinates a parameter pushed against a lower bound near zero (a friction term that
@@ -377,36 +387,26 @@ class Engine:
         fitted columns are padded with held ones to a multiple of ``BLOCK``, so that one
         compiled solve serves every fitted set of that size.
         """
-        problems = [self._lm_problem(x0, active)
-                    for x0, active in zip(starts, actives, strict=True)]
-        out = [p["x"] for p in problems]
-        sizes: dict[int, list[int]] = {}
-        for k, p in enumerate(problems):
-            sizes.setdefault(len(p["index"]), []).append(k)
-        for members in sizes.values():
-            group = [problems[k] for k in members]
+        out = []
+        for x0, active in zip(starts, actives, strict=True):
+            p = self._lm_problem(x0, active)
 
-            def systems(points: np.ndarray, group=group) -> tuple[np.ndarray, np.ndarray]:
-                at = []
-                for p, point in zip(group, points, strict=True):
-                    xt = p["x"].copy()
-                    xt[p["index"]] = point * p["scales"]
-                    at.append((xt, np.zeros(len(xt), bool), p["index"]))
-                done = [self._system(pred, jac * p["scales"])
-                        for p, (pred, jac) in zip(group, self.evaluate_many(at), strict=True)]
-                return np.stack([r for r, _ in done]), np.stack([j for _, j in done])
+            def system(point: np.ndarray, p=p) -> tuple[np.ndarray, np.ndarray]:
+                xt = p["x"].copy()
+                xt[p["index"]] = point * p["scales"]
+                pred, jac = self.evaluate(xt, np.zeros(len(xt), bool), p["index"])
+                return self._system(pred, jac * p["scales"])
 
-            fits = bounded_least_squares_of_many(
-                systems, 2 * self.n_samples, np.stack([p["p0"] for p in group]),
-                np.stack([p["lower"] for p in group]), np.stack([p["upper"] for p in group]),
-                free=np.stack([p["free"] for p in group]), rtol=LM_RTOL, atol=LM_RTOL,
-                ftol=LM_RTOL, max_steps=self.max_iterations, marquardt=True,
+            fit = bounded_least_squares_of(
+                system, 2 * self.n_samples, p["p0"], p["lower"], p["upper"], free=p["free"],
+                rtol=LM_RTOL, atol=LM_RTOL, ftol=LM_RTOL, max_steps=self.max_iterations,
+                marquardt=True,
             )
-            for k, p, fit in zip(members, group, fits, strict=True):
-                if fit.cost < fit.cost_start:  # else x keeps its exact start values
-                    n = len(p["cols"])
-                    out[k] = p["x"].copy()
-                    out[k][p["cols"]] = fit.value[:n] * p["scales"][:n]
+            x = p["x"].copy()
+            if fit.cost < fit.cost_start:  # else x keeps its exact start values
+                n = len(p["cols"])
+                x[p["cols"]] = fit.value[:n] * p["scales"][:n]
+            out.append(x)
         return out
 
     def _lm_problem(self, x0: np.ndarray, active: Sequence[int]) -> dict[str, np.ndarray]:

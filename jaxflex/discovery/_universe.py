@@ -156,33 +156,15 @@ class Problem(eqx.Module):
         return jnp.concatenate([s.reshape(-1) for s in sims]) / self.sigma
 
 
-def _block_impl(problem: Problem, phi, logflag, tangents):
-    """Predictions at ``phi`` and their derivatives along ``BLOCK`` tangents (forward mode).
-
-    ``x = exp(φ)`` where ``logflag``, else ``x = φ``. One compiled function serves every
-    Jacobian of a run (score tests and every refit): the tangents select the columns.
-    """
-
-    def pred(p):
-        return problem.predicted(jnp.where(logflag, jnp.exp(p), p))
-
-    return jax.vmap(lambda t: jax.jvp(pred, (phi,), (t,)), out_axes=(None, 0))(tangents)
+def _block_impl(problem: Problem, x, tangents):
+    """Predictions at ``x`` and their derivatives along ``BLOCK`` tangents (forward mode): the
+    tangents select the Jacobian's columns."""
+    return jax.vmap(lambda t: jax.jvp(problem.predicted, (x,), (t,)), out_axes=(None, 0))(tangents)
 
 
-def _blocks_impl(problem: Problem, phis, logflags, tangents):
-    """:func:`_block_impl` at each row of ``phis``, ``logflags``, ``tangents``, on one device:
-    the refits' Levenberg–Marquardt calls it back from its compiled loop, which holds a worker
-    of the device's runtime, so a program split across devices would wait for it forever."""
-    return jax.vmap(_block_impl, in_axes=(None, 0, 0, 0))(problem, phis, logflags, tangents)
-
-
-jacobian_blocks = eqx.filter_jit(_blocks_impl)
-"""Compiled residual Jacobian blocks, :data:`BLOCKS` per call (one compile per problem
-shape): every Jacobian of a discovery run, of one point or of refits in lockstep."""
-
-
-forward = eqx.filter_jit(lambda problem, x: problem.predicted(x))
-"""Compiled prediction of a problem at the parameter vector ``x``."""
+jacobian_block = eqx.filter_jit(_block_impl)
+"""Compiled residual Jacobian of a block of columns (one compile per problem shape): every
+Jacobian of a discovery run."""
 
 
 forward_many = eqx.filter_jit(lambda problem, xs: population_vmap(problem.predicted, xs))
@@ -199,9 +181,5 @@ BLOCK = 8
 
 """Tangent columns per forward-mode pass."""
 
-
-BLOCKS = 4
-
-"""Blocks of tangent columns per call of :func:`jacobian_blocks` (padded with copies)."""
 
 
