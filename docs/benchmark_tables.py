@@ -224,6 +224,22 @@ def time_to_answer_table() -> str:
                    *(f"{label} s" for label in revisions)], rows)
 
 
+def time_to_answer_breakdown_table() -> str:
+    """Where a warm ``discover`` on ROTFLEX spends its time, by phase, each revision
+    (``time_to_answer.json``, ``--breakdown``)."""
+    revisions = {label: revision["runs"]["discover_rotflex"]["breakdown"]
+                 for label, revision in result("time_to_answer")["revisions"].items()
+                 if "breakdown" in revision["runs"].get("discover_rotflex", {})}
+    phases = list(dict.fromkeys(p for b in revisions.values() for p in b["phases"]))
+    rows = [[phase, *(f"{b['phases'][phase]:.1f}" if phase in b["phases"] else "–"
+                      for b in revisions.values())] for phase in phases]
+    rows += [[f"{step} (all phases)", *(f"{b['compilation'][step]:.1f}"
+                                        for b in revisions.values())]
+             for step in next(iter(revisions.values()))["compilation"]]
+    rows.append(["whole run", *(f"{b['total']:.1f}" for b in revisions.values())])
+    return _table(["phase", *(f"{label} s" for label in revisions)], rows)
+
+
 def _pair(scores: dict) -> str:
     """θ / α NRMSE of one ROTFLEX prediction or simulation."""
     return " / ".join(f"{scores[c]:.0f} %" if scores[c] >= 100 else f"{scores[c]:.1f} %"
@@ -300,6 +316,7 @@ TABLES: dict[str, Callable[[], str]] = {
     "discover": discover_table,
     "cli_startup": cli_startup_table,
     "time_to_answer": time_to_answer_table,
+    "time_to_answer_breakdown": time_to_answer_breakdown_table,
     "real_rig": real_rig_table,
     "real_rig_prediction": real_rig_prediction_table,
     "real_rig_criteria": real_rig_criteria_table,
