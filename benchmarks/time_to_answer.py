@@ -85,14 +85,13 @@ def timed(argv: list[str], env: dict[str, str], tree: Path) -> dict:
             "last_line": lines[-1] if lines else "", "load_average_before": os.getloadavg()[0]}
 
 
-PHASES = {  # phase of a discovery run → (module, object, attributes: the first that exists)
-    "Levenberg–Marquardt refits": ("jaxflex.discovery._engine", "Engine", ["_lm_many", "_lm"]),
-    "profile scans and starts": ("jaxflex.discovery._engine", "Engine", ["profile_start"]),
-    "score tests": ("jaxflex.discovery._engine", "Engine", ["score_tests"]),
-    "base model's search and refinement": ("jaxflex.identification", None, ["identify"]),
-    "runs of the refits, batched": ("jaxflex.discovery._engine", "Engine",
-                                    ["predictions_many"]),
-    "runs of the step's fit": ("jaxflex.discovery._engine", "Engine", ["predictions"]),
+PHASES = {  # phase of a discovery run → (module, object, attribute); absent ones are skipped
+    "Levenberg–Marquardt refits": ("jaxflex.discovery._engine", "Engine", "_lm"),
+    "profile scans and starts": ("jaxflex.discovery._engine", "Engine", "profile_start"),
+    "score tests": ("jaxflex.discovery._engine", "Engine", "score_tests"),
+    "base model's search and refinement": ("jaxflex.identification", None, "identify"),
+    "runs of the refits, batched": ("jaxflex.discovery._engine", "Engine", "predictions_many"),
+    "runs of the step's fit": ("jaxflex.discovery._engine", "Engine", "predictions"),
 }
 
 BREAKDOWN = """
@@ -110,13 +109,11 @@ def timed(name, fn):
         finally:
             spent[name] += time.perf_counter() - t0
     return wrapper
-for name, (module, owner, attributes) in phases.items():
+for name, (module, owner, attribute) in phases.items():
     target = importlib.import_module(module)
     target = getattr(target, owner) if owner else target
-    for attribute in attributes:
-        if hasattr(target, attribute):
-            setattr(target, attribute, timed(name, getattr(target, attribute)))
-            break
+    if hasattr(target, attribute):
+        setattr(target, attribute, timed(name, getattr(target, attribute)))
 from jaxflex.cli import main
 t0 = time.perf_counter()
 try:

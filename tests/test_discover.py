@@ -37,6 +37,7 @@ from jaxflex.discovery._universe import Slot
 from jaxflex.discovery.loop import _initial_params, _rigid
 from jaxflex.discovery.scores import score_statistic
 from jaxflex.effects import AbstractEffect, Stribeck, get_effect
+from jaxflex.evolve import get_strategy
 from jaxflex.metrics import nrmse
 from jaxflex.model import Model
 from jaxflex.parameters import ParameterSpec
@@ -380,6 +381,14 @@ def test_discover_refuses_bad_fitting_options_in_one_line(payload_case, keyword,
     assert str(info.value).startswith(message) and "\n" not in str(info.value)
 
 
+def test_discover_takes_the_base_search_once_and_as_a_strategy(payload_case):
+    records, _, _ = payload_case
+    with pytest.raises(ValueError, match="search= or budget=, not both"):
+        discover(records, search=get_strategy("de", generations=1, population=4), budget=(1, 4))
+    with pytest.raises(TypeError, match="search must be a strategy .* got str"):
+        discover(records, search="de")
+
+
 class _Searched(Exception):
     """Raised by the spy in place of the base model's search."""
 
@@ -532,9 +541,11 @@ def test_a_rigid_estimate_beyond_a_bound_seeds_the_search_on_it():
     records = make_records(inputs=("pulse", "half_sine"), duration=1.0)
     above = dataclasses.replace(_rigid(records, Model(), ("joint_angle", "tip_acceleration")),
                                 b_v=0.5, active=())
-    params = _initial_params(records, Model(), None, (2, 8), 0, False, above,
+    params = _initial_params(records, Model(), None,
+                             get_strategy("de", generations=2, population=8), 0, False, above,
                              {"bounds": None, "fixed": None, "weights": None, "noise": None,
-                              "channels": ("joint_angle", "tip_acceleration")})
+                              "channels": ("joint_angle", "tip_acceleration"),
+                              "initial_state": "rest", "initial_modes": 2})
     assert 1e-5 <= params["b_v"] <= 0.3
 
 

@@ -26,6 +26,7 @@ from jaxflex.discovery._universe import (
     MANY,
     Problem,
     Universe,
+    forward,
     forward_many,
     jacobian_block,
 )
@@ -52,10 +53,9 @@ PROFILE_POINTS = 13
 """Start values of a new effect's parameters tried before the refit (unit-box diagonal)."""
 
 
-PROFILE_ROUNDS = 2
+GOLDEN_STEPS = 12
 
-"""Rounds refining the best start value: each evaluates :data:`MANY` points between the best
-one's neighbours in one batched call."""
+"""Golden-section steps refining the best start value."""
 
 
 PATTERN_ROUNDS = 2
@@ -70,7 +70,7 @@ PATTERN = (0.5, 0.8, 0.9, 0.95, 0.98, 0.99, 1.01, 1.02, 1.05, 1.1, 1.25, 2.0)
 
 KEPT_POINTS = 16
 
-"""Points whose Jacobian columns the engine keeps (:meth:`Engine.evaluate_many`)."""
+"""Points whose Jacobian columns the engine keeps (:meth:`Engine.evaluate`)."""
 
 
 LM_STEPS = 30
@@ -202,43 +202,30 @@ class Engine:
         return mask & self.universe.log
 
     def evaluate(self, x: np.ndarray, logflag: np.ndarray, cols: Sequence[int]):
-        """(``ŷ/σ``, Jacobian columns ``∂(ŷ/σ)/∂φ`` for ``cols``) at ``x``."""
-        return self.evaluate_many([(x, logflag, cols)])[0]
-
-    def evaluate_many(self, points: Sequence[tuple[np.ndarray, np.ndarray, Sequence[int]]]):
-        """:meth:`evaluate` at several ``(x, logflag, cols)``.
+        """(``ŷ/σ``, Jacobian columns ``∂(ŷ/σ)/∂φ`` for ``cols``) at ``x``.
 
         The columns are computed in ``x`` (a log coordinate's is ``x`` times it) and kept for
         the last :data:`KEPT_POINTS` points, so that the score tests, the profiles and a
         refit's first step at one point share them; the missing ones in blocks of
         :data:`BLOCK`."""
-        d = len(self.universe.space)
-        blocks = []  # (key, columns, x, tangents)
-        for x, _, cols in points:
-            key = np.asarray(x, dtype=float).tobytes()
-            pred, known = self._columns.setdefault(key, (None, {}))
-            missing = [c for c in dict.fromkeys(int(c) for c in cols) if c not in known]
-            if not missing and pred is not None:
-                continue
+        x = np.asarray(x, dtype=float)
+        key = x.tobytes()
+        pred, known = self._columns.pop(key, (None, {}))
+        missing = [c for c in dict.fromkeys(int(c) for c in cols) if c not in known]
+        if pred is None or missing:
             for start in range(0, max(len(missing), 1), BLOCK):
                 chunk = missing[start:start + BLOCK]
-                tangents = np.zeros((BLOCK, d))
+                tangents = np.zeros((BLOCK, len(x)))
                 tangents[np.arange(len(chunk)), chunk] = 1.0
-                blocks.append((key, chunk, np.asarray(x, dtype=float), tangents))
-        for key, chunk, x, tangents in blocks:
-            y, jt = jacobian_block(self.problem, jnp.asarray(x), jnp.asarray(tangents))
-            _, known = self._columns[key]
-            self._columns[key] = (np.asarray(y), known | dict(zip(chunk, np.asarray(jt),
-                                                                  strict=False)))
-        out = []
-        for x, logflag, cols in points:
-            pred, known = self._columns[np.asarray(x, dtype=float).tobytes()]
-            scale = np.where(logflag, x, 1.0)
-            out.append((pred, np.stack([known[int(c)] * scale[c] for c in cols], axis=1)
-                        if len(cols) else np.zeros((pred.size, 0))))
+                y, jt = jacobian_block(self.problem, jnp.asarray(x), jnp.asarray(tangents))
+                pred = np.asarray(y)
+                known = known | dict(zip(chunk, np.asarray(jt), strict=False))
+        self._columns[key] = (pred, known)  # the most recent last
         while len(self._columns) > KEPT_POINTS:
             del self._columns[next(iter(self._columns))]
-        return out
+        scale = np.where(logflag, x, 1.0)
+        return pred, (np.stack([known[int(c)] * scale[c] for c in cols], axis=1)
+                      if len(cols) else np.zeros((pred.size, 0)))
 
     def whitened(self, pred: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """(``u``, ``dz(u)``): the whitened residual and its part beyond quantisation."""
@@ -274,7 +261,7 @@ class Engine:
             return []
         u = self.universe
         actives = [list(active) for _, active in starts]
-        xs = self._lm_many([x0 for x0, _ in starts], actives)
+        xs = [self._lm(x0, active) for (x0, _), active in zip(starts, actives, strict=True)]
         effect_cols = [[i for s in active for i in u.index(u.slots[s].names)]
                        for active in actives]
         factors = np.asarray(PATTERN)
@@ -299,7 +286,7 @@ class Engine:
                     base_cost.setdefault(k, float(cost[0]))
                     best[k], best_cost[k] = trial[int(np.argmin(cost))], float(np.min(cost))
             pending = [k for k in pending if best_cost[k] < base_cost[k] * (1 - LM_RTOL)]
-            refits = self._lm_many([best[k] for k in pending], [actives[k] for k in pending])
+            refits = [self._lm(best[k], actives[k]) for k in pending]
             for k, x in zip(pending, refits, strict=True):
                 xs[k] = x
         xs = self._release_bounds(xs, actives)
@@ -320,7 +307,7 @@ class Engine:
         if not trials:
             return xs
         keys = list(trials)
-        refits = self._lm_many([trials[k] for k in keys], [actives[k] for k in keys])
+        refits = [self._lm(trials[k], actives[k]) for k in keys]
         costs = self.forward_costs(np.stack(refits + [xs[k] for k in keys]))
         out = list(xs)
         for n, (k, refit) in enumerate(zip(keys, refits, strict=True)):
@@ -347,7 +334,8 @@ class Engine:
 
     def forward_cost(self, x: np.ndarray) -> float:
         """The fit cost at ``x`` (one simulation, no derivatives)."""
-        return float(self.forward_costs(np.asarray(x)[None])[0])
+        cost = self.fit_cost(np.asarray(forward(self.problem, jnp.asarray(x))))
+        return cost if math.isfinite(cost) else math.inf
 
     def predicted_many(self, xs: np.ndarray) -> np.ndarray:
         """``ŷ/σ`` at each row of ``xs``: batched simulations, :data:`MANY` at a time (a last
@@ -376,10 +364,9 @@ class Engine:
         outside = (np.abs(uu) > self.halfwidth).astype(float)
         return r, -np.concatenate([outside[:, None] * jac, inner[:, None] * jac])
 
-    def _lm_many(self, starts: Sequence[np.ndarray], actives: Sequence[Sequence[int]]
-                 ) -> list[np.ndarray]:
-        """Levenberg–Marquardt of the base and ``active`` parameters on the bounds from each
-        start (:func:`jaxflex.least_squares.bounded_least_squares_of` on :meth:`_system`).
+    def _lm(self, x0: np.ndarray, active: Sequence[int]) -> np.ndarray:
+        """Levenberg–Marquardt of the base and ``active`` parameters on the bounds
+        (:func:`jaxflex.least_squares.bounded_least_squares_of`, on :meth:`_system`).
 
         The coordinates are the physical values over their starting magnitudes: in log
         coordinates a parameter pushed against a lower bound near zero (a friction term that
@@ -387,32 +374,6 @@ class Engine:
         fitted columns are padded with held ones to a multiple of ``BLOCK``, so that one
         compiled solve serves every fitted set of that size.
         """
-        out = []
-        for x0, active in zip(starts, actives, strict=True):
-            p = self._lm_problem(x0, active)
-
-            def system(point: np.ndarray, p=p) -> tuple[np.ndarray, np.ndarray]:
-                xt = p["x"].copy()
-                xt[p["index"]] = point * p["scales"]
-                pred, jac = self.evaluate(xt, np.zeros(len(xt), bool), p["index"])
-                return self._system(pred, jac * p["scales"])
-
-            fit = bounded_least_squares_of(
-                system, 2 * self.n_samples, p["p0"], p["lower"], p["upper"], free=p["free"],
-                rtol=LM_RTOL, atol=LM_RTOL, ftol=LM_RTOL, max_steps=self.max_iterations,
-                marquardt=True,
-            )
-            x = p["x"].copy()
-            if fit.cost < fit.cost_start:  # else x keeps its exact start values
-                n = len(p["cols"])
-                x[p["cols"]] = fit.value[:n] * p["scales"][:n]
-            out.append(x)
-        return out
-
-    def _lm_problem(self, x0: np.ndarray, active: Sequence[int]) -> dict[str, np.ndarray]:
-        """One start's problem for :meth:`_lm_many`: the start ``x`` (inactive candidates at
-        their nulls), the fitted ``cols`` padded with held ones to ``index``, its ``scales``,
-        the scaled start ``p0`` and box, and the ``free`` mask."""
         u = self.universe
         mask = u.active_mask(active)
         cols = np.flatnonzero(mask)
@@ -426,10 +387,23 @@ class Engine:
         index = np.concatenate([cols, held])
         scales = np.concatenate([scale, np.ones(len(held))])
         p0 = x[index] / scales
-        return {"x": x, "cols": cols, "index": index, "scales": scales, "p0": p0,
-                "lower": np.concatenate([lower / scale, p0[len(cols):]]),
-                "upper": np.concatenate([upper / scale, p0[len(cols):]]),
-                "free": np.arange(len(index)) < len(cols)}
+
+        def system(p: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+            xt = x.copy()
+            xt[index] = p * scales
+            pred, jac = self.evaluate(xt, np.zeros_like(mask), index)
+            return self._system(pred, jac * scales)
+
+        fit = bounded_least_squares_of(
+            system, 2 * self.n_samples, p0,
+            np.concatenate([u.space.lower[cols] / scale, p0[len(cols):]]),
+            np.concatenate([u.space.upper[cols] / scale, p0[len(cols):]]),
+            free=np.arange(len(index)) < len(cols), rtol=LM_RTOL, atol=LM_RTOL, ftol=LM_RTOL,
+            max_steps=self.max_iterations, marquardt=True,
+        )
+        if fit.cost < fit.cost_start:  # else x keeps its exact start values
+            x[cols] = fit.value[: len(cols)] * scale
+        return x
 
     def profile_start(self, x: np.ndarray, active: Sequence[int], slot: int,
                       guess: Mapping[str, float]) -> tuple[np.ndarray, float]:
@@ -437,10 +411,9 @@ class Engine:
         cost there.
 
         A profile along the diagonal of the new parameters' unit box (a grid and the score
-        test's one-step estimate, then :data:`PROFILE_ROUNDS` finer grids around the best
-        point, each one batched call) of the cost with the fitted parameters re-optimised to
-        first order: the residual is projected off the span of their Jacobian at ``x``.
-        Without that, parameters that compensated the missing effect would pull its start
+        test's one-step estimate in one batched call, then golden-section refinement) of the
+        cost with the fitted parameters re-optimised to first order: the residual is projected
+        off the span of their Jacobian at ``x``. Without that, parameters that compensated the missing effect would pull its start
         towards the null.
         """
         u = self.universe
@@ -459,26 +432,38 @@ class Engine:
             xs[:, idx] = np.asarray(sub.to_vector(sub.from_unit(units)))
             return xs
 
-        def costs_at(ts: np.ndarray) -> np.ndarray:
-            r = np.stack([self._system(p, None)[0] for p in self.predicted_many(at(ts))])
+        def projected(r: np.ndarray) -> np.ndarray:
             r = r - (r @ q) @ q.T
-            costs = np.einsum("ij,ij->i", r, r)
+            costs = np.einsum("...i,...i->...", r, r)
             return np.where(np.isfinite(costs), costs, np.inf)
+
+        def cost_at(t: float) -> float:
+            pred = np.asarray(forward(self.problem, jnp.asarray(at(np.array([t]))[0])))
+            return float(projected(self._system(pred, None)[0]))
 
         grid = np.linspace(0.0, 1.0, PROFILE_POINTS)
         est = np.array([guess.get(o, np.nan) for o in u.slots[slot].tested_own])
         if np.all(np.isfinite(est)) and np.all(est > sub.lower) and np.all(est < sub.upper):
-            grid = np.append(grid, float(np.mean(np.asarray(sub.to_unit(sub.from_vector(est))))))
-        costs = costs_at(grid)
-        for _ in range(PROFILE_ROUNDS):  # between the best point's neighbours, MANY at a time
-            order = np.argsort(grid, kind="stable")
-            grid, costs = grid[order], costs[order]
-            k = int(np.argmin(costs))
-            inner = np.linspace(grid[max(k - 1, 0)], grid[min(k + 1, len(grid) - 1)], MANY + 2)
-            grid = np.concatenate([grid, inner[1:-1]])
-            costs = np.concatenate([costs, costs_at(inner[1:-1])])
+            grid = np.sort(np.append(
+                grid, float(np.mean(np.asarray(sub.to_unit(sub.from_vector(est)))))))
+        costs = projected(np.stack([self._system(p, None)[0]
+                                    for p in self.predicted_many(at(grid))]))
         k = int(np.argmin(costs))
-        return at(grid[k:k + 1])[0], float(costs[k])
+        lo, hi = grid[max(k - 1, 0)], grid[min(k + 1, len(grid) - 1)]
+        ratio = (math.sqrt(5.0) - 1.0) / 2.0
+        a, b = hi - ratio * (hi - lo), lo + ratio * (hi - lo)
+        fa, fb = cost_at(a), cost_at(b)
+        for _ in range(GOLDEN_STEPS):
+            if fa < fb:
+                hi, b, fb = b, a, fa
+                a = hi - ratio * (hi - lo)
+                fa = cost_at(a)
+            else:
+                lo, a, fa = a, b, fb
+                b = lo + ratio * (hi - lo)
+                fb = cost_at(b)
+        cost, t = min([(float(costs[k]), grid[k]), (fa, a), (fb, b)])
+        return at(np.array([t]))[0], cost
 
     def start(self, x: np.ndarray, active: Sequence[int], candidate: int,
               guess: Mapping[str, float], with_cost: bool = False):

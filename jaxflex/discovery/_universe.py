@@ -167,6 +167,10 @@ jacobian_block = eqx.filter_jit(_block_impl)
 Jacobian of a discovery run."""
 
 
+forward = eqx.filter_jit(lambda problem, x: problem.predicted(x))
+"""Compiled prediction of a problem at the parameter vector ``x``."""
+
+
 forward_many = eqx.filter_jit(lambda problem, xs: population_vmap(problem.predicted, xs))
 """Compiled predictions of a problem at the rows of ``xs``, one batched call."""
 
@@ -180,6 +184,3 @@ across two devices (:data:`jaxflex.parallel.MIN_PER_DEVICE`)."""
 BLOCK = 8
 
 """Tangent columns per forward-mode pass."""
-
-
-

@@ -264,14 +264,15 @@ def discover(
         raise ValueError(f"max_steps={max_steps!r} must be an int >= 0")
     if not 0 < alpha < 1:
         raise ValueError(f"alpha={alpha!r} must lie in (0, 1)")
-    if budget is None:
-        budget = BUDGET
-    budget = (int(budget), BUDGET[1]) if isinstance(budget, (int, np.integer)) else budget
-    if len(budget) != 2 or min(budget) < 1:
-        raise ValueError(f"budget={budget!r} must be generations or (generations, population)")
-    budget = (int(budget[0]), int(budget[1]))
     if search is None:
-        search = get_strategy("de", generations=budget[0], population=budget[1])
+        budget = BUDGET if budget is None else budget
+        budget = (int(budget), BUDGET[1]) if isinstance(budget, (int, np.integer)) else budget
+        if len(budget) != 2 or min(budget) < 1:
+            raise ValueError(f"budget={budget!r} must be generations or (generations, "
+                             "population)")
+        search = get_strategy("de", generations=int(budget[0]), population=int(budget[1]))
+    elif budget is not None:
+        raise ValueError("the base model's search is given twice: search= or budget=, not both")
     elif not isinstance(search, AbstractStrategy):
         raise TypeError(f"search must be a strategy (jaxflex.evolve), got {type(search).__name__}")
     if channels is None:
