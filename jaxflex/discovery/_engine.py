@@ -413,8 +413,8 @@ class Engine:
         A profile along the diagonal of the new parameters' unit box (a grid and the score
         test's one-step estimate in one batched call, then golden-section refinement) of the
         cost with the fitted parameters re-optimised to first order: the residual is projected
-        off the span of their Jacobian at ``x``. Without that, parameters that compensated the missing effect would pull its start
-        towards the null.
+        off the span of their Jacobian at ``x``. Without that, parameters that compensated the
+        missing effect would pull its start towards the null.
         """
         u = self.universe
         idx = u.index(u.slots[slot].tested)
