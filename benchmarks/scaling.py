@@ -13,7 +13,10 @@ that its memory is its own, and reports:
   process right after importing jaxflex, and XLA's own account of the compiled program
   (``Compiled.memory_analysis()``: argument, output and temporary buffers, in bytes).
 
-``--quick`` drops the largest point of each axis. Writes ``benchmarks/results/scaling.json``.
+``--quick`` drops the largest point of each axis; ``--populations`` replaces the population axis
+(on an accelerator, say, to go past 10,000). Runs on JAX's default backend (the CPU devices, or
+one GPU where there is one; recorded with each point). Writes ``benchmarks/results/scaling.json``
+(``--out`` elsewhere).
 """
 
 from __future__ import annotations
@@ -91,13 +94,15 @@ def measure(n_elements: int, duration_s: float, population: int, seed: int) -> d
         "xla_output_mb": memory.output_size_in_bytes / 2**20,
         "xla_temp_mb": memory.temp_size_in_bytes / 2**20,
         "cpu_devices": len(jax.devices("cpu")),
+        "backend": jax.default_backend(),
+        "device_kind": jax.devices()[0].device_kind,
     }
 
 
-def points(quick: bool) -> list[dict]:
+def points(axes: dict[str, tuple], quick: bool) -> list[dict]:
     """The base point and each axis through it, without repeats (largest dropped if quick)."""
     out: list[dict] = []
-    for axis, values in AXES.items():
+    for axis, values in axes.items():
         for value in values[:-1] if quick else values:
             point = {**BASE, axis: value}
             if point not in out:
@@ -125,6 +130,7 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--quick", action="store_true", help="drop the largest point of each axis")
     parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--populations", type=int, nargs="+", help="the population axis")
     parser.add_argument("--point", help=argparse.SUPPRESS)  # internal: one point, JSON out
     parser.add_argument("--out", default=str(RESULTS))
     args = parser.parse_args()
@@ -132,11 +138,15 @@ def main() -> None:
         print(json.dumps(measure(**json.loads(args.point), seed=args.seed)))
         return
 
+    from _output import checked_out
+
     from jaxflex._io import provenance, write_json
 
+    out = checked_out(parser, args.out)
+    axes = {**AXES, "population": tuple(args.populations or AXES["population"])}
     started = time.perf_counter()
     rows = []
-    for point in points(args.quick):
+    for point in points(axes, args.quick):
         row = run_point(point, args.seed)
         rows.append(row)
         print(
@@ -148,19 +158,20 @@ def main() -> None:
         )
     exponents = {
         axis: {key: growth(rows, axis, key) for key in ("run_s", "peak_rss_mb", "xla_temp_mb")}
-        for axis in AXES
+        for axis in axes
     }
     write_json(
-        args.out,
+        out,
         {
             "benchmark": "scaling",
             "settings": {
                 "input": "pulse",
                 "base": BASE,
-                "axes": {k: v[:-1] if args.quick else v for k, v in AXES.items()},
+                "axes": {k: v[:-1] if args.quick else v for k, v in axes.items()},
                 "quick": args.quick,
                 "seed": args.seed,
-                "program": "simulate_batch (population split across the CPU devices)",
+                "program": "simulate_batch (population split across the CPU devices, or whole "
+                "on one accelerator)",
                 "memory": "peak_rss_mb: ru_maxrss of a fresh process per point; xla_*_mb: "
                 "Compiled.memory_analysis() of the program",
             },
@@ -172,7 +183,7 @@ def main() -> None:
         },
         overwrite=True,
     )
-    print(f"wrote {args.out}")
+    print(f"wrote {out}")
 
 
 if __name__ == "__main__":

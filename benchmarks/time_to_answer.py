@@ -153,7 +153,8 @@ def main() -> None:
         cache, data, out = scratch / "cache", scratch / "data", scratch / "out"
         out.mkdir()
         env = {k: v for k, v in os.environ.items() if not k.startswith("JAX_")}
-        env |= {"PYTHONPATH": str(tree), "JAXFLEX_PROGRESS": "0", "JAXFLEX_CACHE_DIR": str(cache)}
+        path = os.pathsep.join(filter(None, [str(tree), env.get("PYTHONPATH")]))
+        env |= {"PYTHONPATH": path, "JAXFLEX_PROGRESS": "0", "JAXFLEX_CACHE_DIR": str(cache)}
         prepare_data(tree, data, {**env, "JAXFLEX_CACHE_DIR": str(scratch / "other")})
         runs = {}
         for name, argv in commands(tree, data, out).items():

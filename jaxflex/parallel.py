@@ -32,9 +32,9 @@ candidates in SIMD vectors of up to 8 doubles (AVX-512) and computes a partial v
 of a share with other instructions, which may round a last candidate differently; with whole
 vectors every candidate rounds alike whatever the share's size."""
 BLOCK = 104
-"""Candidates one device simulates at once; larger shares run block after block (``lax.map``),
-which keeps the working set in cache: about 100 at a time run faster per candidate than 500
-at once."""
+"""Candidates one CPU device simulates at once; larger shares run block after block
+(``lax.map``), which keeps the working set in cache: about 100 at a time run faster per candidate
+than 500 at once. An accelerator runs its whole share at once (its threads need the width)."""
 MIN_PER_DEVICE = 16
 """Smaller populations are not split: below it, waiting for the other devices costs more than
 their help."""
@@ -117,8 +117,9 @@ def _population_size(population) -> int:
 
 
 def _blockwise(fn: Callable[..., _T], population, *args) -> _T:
-    """vmap of ``fn`` over the population, :data:`BLOCK` candidates at a time."""
-    if _population_size(population) > BLOCK:
+    """vmap of ``fn`` over the population, :data:`BLOCK` candidates at a time on the CPU."""
+    on_cpu = population_devices()[0].platform == "cpu"
+    if on_cpu and _population_size(population) > BLOCK:
         return jax.lax.map(lambda x: fn(x, *args), population, batch_size=BLOCK)
     return jax.vmap(fn, in_axes=(0,) + (None,) * len(args))(population, *args)
 
