@@ -170,15 +170,27 @@ def _jacobian(objective: Objective, phi: Float[Array, " d"]):
 _jacobian_jit = eqx.filter_jit(_jacobian)
 
 
-def _phi_linearization(objective: Objective, x: np.ndarray, linearization):
-    """A unit-box linearisation ``(r, ∂r/∂u)`` at ``x`` in the coordinates ``φ``
-    (``∂φ/∂u`` is ``log(hi/lo)`` on a log scale, ``hi − lo`` otherwise), or None where a
-    parameter lies on a bound: the box map clips there, and its derivative is not ``φ``'s."""
-    lower = np.array([s.lower for s in objective.specs])
-    upper = np.array([s.upper for s in objective.specs])
-    if linearization is None or not np.all((x > lower) & (x < upper)):
+def phi_jacobian(objective: Objective, u: Float[ArrayLike, " d"]):
+    """The residuals-and-Jacobian program of ``objective`` in the coordinates ``φ``, compiled
+    (lowered at the unit-box point ``u``); with the box's lower corner and extent in ``φ``,
+    ``φ = lower + u·span`` (the box map without its clip), and the number of residuals.
+    :func:`jaxflex.refine.refine`'s Levenberg–Marquardt steps call it: their last
+    linearisation is then :func:`uncertainty`'s, on a bound too."""
+    _, to_phi, _ = _coordinate_maps(objective)
+    lower = np.asarray(to_phi(jnp.asarray(objective.space.lower)))
+    span = np.asarray(to_phi(jnp.asarray(objective.space.upper))) - lower
+    compiled = _jacobian_jit.lower(objective, jnp.asarray(lower + np.asarray(u) * span)).compile()
+    return compiled, lower, span, len(objective.layout()[0])
+
+
+def _phi_linearization(objective: Objective, linearization):
+    """A unit-box linearisation ``(r, ∂r/∂u)`` in the coordinates ``φ`` (``∂φ/∂u`` is
+    ``log(hi/lo)`` on a log scale, ``hi − lo`` otherwise; :func:`phi_jacobian`)."""
+    if linearization is None:
         return None
     log, _, _ = _coordinate_maps(objective)
+    lower = np.array([s.lower for s in objective.specs])
+    upper = np.array([s.upper for s in objective.specs])
     residuals, unit_jacobian = linearization
     ratio = np.where(log, upper, 1.0) / np.where(log, lower, 1.0)  # 1 where linear
     return residuals, unit_jacobian / np.where(log, np.log(ratio), upper - lower)
@@ -206,8 +218,8 @@ def uncertainty(
 
     ``params`` holds (at least) the free parameters of ``objective``, in physical units.
     ``linearization``, the residuals and their unit-box Jacobian at ``params`` (a refinement's
-    :attr:`jaxflex.refine.Refinement.linearization`), is reused where every parameter lies
-    inside its bounds instead of compiling and evaluating the Jacobian again.
+    :attr:`jaxflex.refine.Refinement.linearization`, :func:`phi_jacobian`'s scaled to the
+    box), is reused instead of evaluating the Jacobian again.
 
     Beside the nominal intervals (white noise, correct model) come the robust ones (HAC,
     bandwidth from the residuals' own lag-1 correlation) and the residual checks that say
@@ -230,7 +242,7 @@ def uncertainty(
         raise ValueError(f"uncertainty: parameter value(s) missing for {missing}")
     x = np.array([float(params[n]) for n in names])
     log, to_phi, _ = _coordinate_maps(objective)
-    reused = _phi_linearization(objective, x, linearization)
+    reused = _phi_linearization(objective, linearization)
     r, jac = reused or _jacobian_jit(objective, to_phi(jnp.asarray(x)))
     r, jac = np.asarray(r), np.asarray(jac)
     if not (np.all(np.isfinite(r)) and np.all(np.isfinite(jac))):
@@ -433,5 +445,6 @@ __all__ = [
     "HAC_MAX_FRACTION",
     "WIDENING_LIMIT",
     "Uncertainty",
+    "phi_jacobian",
     "uncertainty",
 ]

@@ -16,7 +16,7 @@ from dataclasses import dataclass, field
 
 import jax.numpy as jnp
 import numpy as np
-from jaxtyping import Array, ArrayLike
+from jaxtyping import ArrayLike
 
 from jaxflex.intervals import BOUND_MARGIN as BOUND_MARGIN
 from jaxflex.intervals import HAC_MAX_FRACTION as HAC_MAX_FRACTION
@@ -24,12 +24,13 @@ from jaxflex.intervals import UNIDENTIFIABLE_RATIO as UNIDENTIFIABLE_RATIO
 from jaxflex.intervals import WHITE_ALPHA as WHITE_ALPHA
 from jaxflex.intervals import WIDENING_LIMIT as WIDENING_LIMIT
 from jaxflex.intervals import Uncertainty as Uncertainty
+from jaxflex.intervals import phi_jacobian
 from jaxflex.intervals import uncertainty as uncertainty
 from jaxflex.least_squares import RESULT_NAMES as RESULT_NAMES
 from jaxflex.least_squares import BoundedLevenbergMarquardt as BoundedLevenbergMarquardt
 from jaxflex.least_squares import BoundedSolution as BoundedSolution
 from jaxflex.least_squares import BoxedDampedNewton as BoxedDampedNewton
-from jaxflex.least_squares import _bounded_solve_jit, bounded_least_squares
+from jaxflex.least_squares import bounded_least_squares as bounded_least_squares
 from jaxflex.least_squares import bounded_least_squares_of as bounded_least_squares_of
 from jaxflex.least_squares import dense_jacobian as dense_jacobian
 from jaxflex.least_squares import in_fit_words as in_fit_words
@@ -96,10 +97,6 @@ class Refinement:
 
 
 
-def _unit_residuals(u: Array, objective: Objective) -> Array:
-    return objective.unit_residuals(u)
-
-
 def refine(
     objective: Objective,
     starts: Mapping[str, ArrayLike] | Sequence[Mapping[str, ArrayLike]],
@@ -110,11 +107,14 @@ def refine(
 ) -> Refinement:
     """Levenberg–Marquardt from one start (free parameters, physical) or the best of several.
 
-    Each start is refined by :func:`bounded_least_squares` in the unit box of the search; the
-    end with the lowest cost is returned, accepted only if it is finite and below the cost of
-    the best start. ``rtol``/``atol`` are optimistix's stopping tolerances (on the step in the
-    unit box and on the residuals); the defaults resolve the parameters far below their
-    statistical uncertainty.
+    Each start is refined by :func:`bounded_least_squares_of` in the unit box of the search;
+    the end with the lowest cost is returned, accepted only if it is finite and below the cost
+    of the best start. ``rtol``/``atol`` are optimistix's stopping tolerances (on the step in
+    the unit box and on the residuals); the defaults resolve the parameters far below their
+    statistical uncertainty. The residuals and their Jacobian come from the one compiled
+    program :func:`jaxflex.intervals.uncertainty` uses (:func:`jaxflex.intervals.phi_jacobian`,
+    in coordinates linear in the unit box), called back from a solve compiled without the
+    model: the simulator's derivatives compile once per objective, not twice.
     """
     starts = [starts] if isinstance(starts, Mapping) else list(starts)
     if not starts:
@@ -130,19 +130,22 @@ def refine(
         missing = [n for n in names if n not in start]
         if missing:
             raise ValueError(f"refinement start lacks parameter(s) {missing}")
-        u_starts.append(jnp.clip(space.to_unit({n: start[n] for n in names}), 0.0, 1.0))
-    zeros, ones = jnp.zeros(len(names)), jnp.ones(len(names))
+        u_starts.append(np.clip(np.asarray(space.to_unit({n: start[n] for n in names})),
+                                0.0, 1.0))
+    zeros, ones = np.zeros(len(names)), np.ones(len(names))
 
     t0 = time.perf_counter()
-    compiled = _bounded_solve_jit.lower(
-        _unit_residuals, objective, u_starts[0], zeros, ones, ones > 0, rtol, atol, 0.0,
-        max_steps, False,
-    ).compile()
+    jacobian, lower, span, size = phi_jacobian(objective, u_starts[0])
     compile_time = time.perf_counter() - t0
+
+    def system(u: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        r, jac = jacobian(objective, jnp.asarray(lower + u * span))
+        return np.asarray(r), np.asarray(jac) * span
+
     t0 = time.perf_counter()
     runs = [
-        (u0, bounded_least_squares(_unit_residuals, objective, u0, zeros, ones, rtol=rtol,
-                                   atol=atol, max_steps=max_steps, solve=compiled))
+        (u0, bounded_least_squares_of(system, size, u0, zeros, ones, rtol=rtol, atol=atol,
+                                      max_steps=max_steps))
         for u0 in u_starts
     ]
     wall_time = time.perf_counter() - t0
