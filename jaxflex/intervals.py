@@ -56,7 +56,7 @@ the parameters that dominate them (and any whose interval spans more than a fact
 from __future__ import annotations
 
 import math
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 
 import equinox as eqx
@@ -170,7 +170,8 @@ def _jacobian(objective: Objective, phi: Float[Array, " d"]):
 _jacobian_jit = eqx.filter_jit(_jacobian)
 
 
-def phi_jacobian(objective: Objective, u: Float[ArrayLike, " d"]):
+def phi_jacobian(objective: Objective, u: Float[ArrayLike, " d"]
+                 ) -> tuple[Callable, np.ndarray, np.ndarray, int]:
     """The residuals-and-Jacobian program of ``objective`` in the coordinates ``φ``, compiled
     (lowered at the unit-box point ``u``); with the box's lower corner and extent in ``φ``,
     ``φ = lower + u·span`` (the box map without its clip), and the number of residuals.
