@@ -164,7 +164,6 @@ def test_intervals_contain_the_truth_at_about_the_stated_rate():
     assert 0.15 < np.mean(z**2) < 2.5, z
 
 
-
 def test_a_refinement_ended_on_a_bound_gives_the_intervals_a_fresh_jacobian_gives(monkeypatch):
     """The true E lies above the box: the refinement ends on E's upper bound, and its last
     linearisation (the box map without its clip) is the Jacobian the intervals compute."""
@@ -179,6 +178,7 @@ def test_a_refinement_ended_on_a_bound_gives_the_intervals_a_fresh_jacobian_give
     reused = uncertainty(objective, result.params, linearization=result.linearization)
     for a, b in ((fresh.std, reused.std), (fresh.lower, reused.lower)):
         np.testing.assert_allclose(b, a, rtol=1e-8, atol=0)
+
 
 @pytest.mark.slow
 def test_interval_coverage_over_ten_noise_seeds():
