@@ -142,6 +142,9 @@ def main() -> None:
 
     from jaxflex._io import provenance, write_json
 
+    bad = [p for p in args.populations or () if p < 1]
+    if bad:
+        parser.error(f"--populations: each population must be at least 1, got {bad}")
     out = checked_out(parser, args.out)
     axes = {**AXES, "population": tuple(args.populations or AXES["population"])}
     started = time.perf_counter()
