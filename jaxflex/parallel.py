@@ -16,7 +16,8 @@ a machine whose default backend is an accelerator (one device there: no split).
 from __future__ import annotations
 
 import os
-from collections.abc import Callable
+from collections.abc import Callable, Iterable
+from concurrent.futures import ThreadPoolExecutor
 from typing import TypeVar
 
 import jax
@@ -41,6 +42,7 @@ their help."""
 _AXIS = "population"
 
 _T = TypeVar("_T")
+_I = TypeVar("_I")
 
 
 def usable_cores() -> int:
@@ -166,6 +168,24 @@ def population_vmap(fn: Callable[..., _T], population, *args) -> _T:
     return gathered(jax.tree.map(lambda y: y[:size], jax.jit(body)(population, *args)))
 
 
+def side_by_side(fn: Callable[[_I], _T], items: Iterable[_I]) -> list[_T]:
+    """``[fn(item) for item in items]``, one thread per CPU device (:func:`population_devices`).
+
+    For independent host-driven work made of single runs (a profile's golden-section search:
+    one simulation after another): XLA runs such a program on one core, and the calls of
+    several threads run side by side, as a population's shares do. With one device
+    (``JAXFLEX_HOST_DEVICES=1``: other processes fill the cores) or on an accelerator, one item
+    after another. Each item's result is what ``fn`` alone computes for it.
+    """
+    items = list(items)
+    devices = population_devices()
+    workers = min(len(devices) if devices[0].platform == "cpu" else 1, len(items))
+    if workers <= 1:
+        return [fn(item) for item in items]
+    with ThreadPoolExecutor(workers, thread_name_prefix="jaxflex") as pool:
+        return list(pool.map(fn, items))
+
+
 __all__ = [
     "BLOCK",
     "LANES",
@@ -177,5 +197,6 @@ __all__ = [
     "gathered_sharding",
     "population_devices",
     "population_vmap",
+    "side_by_side",
     "usable_cores",
 ]

@@ -5,13 +5,15 @@ from __future__ import annotations
 
 import dataclasses
 import math
-from collections.abc import Iterable, Mapping, Sequence
+from collections.abc import Callable, Iterable, Mapping, Sequence
+from functools import partial
 
 import numpy as np
 
 from jaxflex.discovery._engine import Engine
 from jaxflex.discovery.report import Confirmation
 from jaxflex.discovery.scores import ScoreResult, lr_test
+from jaxflex.parallel import side_by_side
 from jaxflex.parameters import ParameterSpace
 
 BOUND_TOL = 1e-3
@@ -35,14 +37,16 @@ def profile_scan(engine: Engine, x: np.ndarray, active: Sequence[int],
     u = engine.universe
     names = [c.name for c in u.candidates]
     current = engine.forward_cost(x)
-    skip = set(skip)
+    scanned = [r for r in ranking if r.effect not in set(skip)]
+    profiles = dict(zip((r.effect for r in scanned), side_by_side(
+        lambda r: engine.start(x, active, names.index(r.effect), r.estimate, with_cost=True),
+        scanned), strict=True))
     out, starts = [], {}
     for r in ranking:
-        if r.effect in skip:
+        if r.effect not in profiles:
             out.append(r)
             continue
-        candidate = names.index(r.effect)
-        slot, start, profiled = engine.start(x, active, candidate, r.estimate, with_cost=True)
+        slot, start, profiled = profiles[r.effect]
         drop = max(current - profiled, 0.0)
         p = lr_test(drop, [u.space[n] for n in u.slots[slot].tested])
         starts[r.effect] = (slot, start)
@@ -67,15 +71,17 @@ def confirm(engine: Engine, x: np.ndarray, cost: float, active: Sequence[int],
     the compensation left, and the refit stays in that basin."""
     u = engine.universe
     released = engine.released(x, active) if engine.centred else None
-    tries = []  # (request, slot, start)
+    jobs: list[tuple[int, Callable[[], tuple[int, np.ndarray]]]] = []  # (request, its start)
     for n, (candidate, guess, start) in enumerate(requests):
         if start is not None:
-            tries.append((n, *start))
+            jobs.append((n, partial(tuple, start)))
         else:  # every member of a profile: the profiled cost may misjudge a large effect
-            tries += [(n, i, engine.profile_start(x, active, i, guess)[0])
-                      for i, s in enumerate(u.slots) if s.candidate == candidate]
+            jobs += [(n, partial(_member_start, engine, x, active, i, guess))
+                     for i, s in enumerate(u.slots) if s.candidate == candidate]
         if released is not None:
-            tries.append((n, *engine.start(released, active, candidate, guess)))
+            jobs.append((n, partial(engine.start, released, active, candidate, guess)))
+    tries = [(n, *found) for (n, _), found in  # (request, slot, start), profiled side by side
+             zip(jobs, side_by_side(lambda job: job[1](), jobs), strict=True)]
     fits = engine.fit_many([(x_start, list(active) + [slot]) for _, slot, x_start in tries])
     out = []
     for n, (candidate, _, _) in enumerate(requests):
@@ -85,6 +91,12 @@ def confirm(engine: Engine, x: np.ndarray, cost: float, active: Sequence[int],
         out.append((_confirmation(engine, cost, active, candidate, slot, x1, cost1, level),
                     slot, x1, cost1))
     return out
+
+
+def _member_start(engine: Engine, x: np.ndarray, active: Sequence[int], slot: int,
+                  guess: Mapping[str, float]) -> tuple[int, np.ndarray]:
+    """``(slot, start)`` of one member of a profiled candidate (:meth:`Engine.profile_start`)."""
+    return slot, engine.profile_start(x, active, slot, guess)[0]
 
 
 def _confirmation(engine: Engine, cost: float, active: Sequence[int], candidate: int,
