@@ -80,7 +80,7 @@ def test_pytrees_blocks_and_jit():
 
 SIDE_BY_SIDE_CHECKS = textwrap.dedent(
     """
-    import hashlib, threading
+    import threading
     import jax, numpy as np
     from jaxflex import Model, reference_parameters, simulate
     from jaxflex.parallel import side_by_side
