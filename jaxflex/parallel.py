@@ -118,10 +118,14 @@ def _population_size(population) -> int:
     return leaves[0].shape[0]
 
 
+def _on_cpu() -> bool:
+    """Whether :func:`population_devices` are CPU devices (not an accelerator)."""
+    return population_devices()[0].platform == "cpu"
+
+
 def _blockwise(fn: Callable[..., _T], population, *args) -> _T:
     """vmap of ``fn`` over the population, :data:`BLOCK` candidates at a time on the CPU."""
-    on_cpu = population_devices()[0].platform == "cpu"
-    if on_cpu and _population_size(population) > BLOCK:
+    if _on_cpu() and _population_size(population) > BLOCK:
         return jax.lax.map(lambda x: fn(x, *args), population, batch_size=BLOCK)
     return jax.vmap(fn, in_axes=(0,) + (None,) * len(args))(population, *args)
 
@@ -178,8 +182,7 @@ def side_by_side(fn: Callable[[_I], _T], items: Iterable[_I]) -> list[_T]:
     after another. Each item's result is what ``fn`` alone computes for it.
     """
     items = list(items)
-    devices = population_devices()
-    workers = min(len(devices) if devices[0].platform == "cpu" else 1, len(items))
+    workers = min(len(population_devices()) if _on_cpu() else 1, len(items))
     if workers <= 1:
         return [fn(item) for item in items]
     with ThreadPoolExecutor(workers, thread_name_prefix="jaxflex") as pool:

@@ -37,7 +37,8 @@ def profile_scan(engine: Engine, x: np.ndarray, active: Sequence[int],
     u = engine.universe
     names = [c.name for c in u.candidates]
     current = engine.forward_cost(x)
-    scanned = [r for r in ranking if r.effect not in set(skip)]
+    skip = set(skip)
+    scanned = [r for r in ranking if r.effect not in skip]
     profiles = dict(zip((r.effect for r in scanned), side_by_side(
         lambda r: engine.start(x, active, names.index(r.effect), r.estimate, with_cost=True),
         scanned), strict=True))
@@ -74,7 +75,7 @@ def confirm(engine: Engine, x: np.ndarray, cost: float, active: Sequence[int],
     jobs: list[tuple[int, Callable[[], tuple[int, np.ndarray]]]] = []  # (request, its start)
     for n, (candidate, guess, start) in enumerate(requests):
         if start is not None:
-            jobs.append((n, partial(tuple, start)))
+            jobs.append((n, lambda start=start: start))  # found already
         else:  # every member of a profile: the profiled cost may misjudge a large effect
             jobs += [(n, partial(_member_start, engine, x, active, i, guess))
                      for i, s in enumerate(u.slots) if s.candidate == candidate]
