@@ -152,6 +152,35 @@ class _BoxState(eqx.Module):
     f_info: optx.FunctionInfo.ResidualJac
     held: Bool[Array, " d"]
     norms: Float[Array, " d"]
+    curvature: Float[Array, "d d"]  # the secant estimate of Σ rᵢ∇²rᵢ (zero without secant)
+    queried: Bool[Array, ""]  # y and f_info are an accepted point's (not init's zeros)
+
+
+def secant_curvature(curvature: Float[Array, "d d"], step: Float[Array, " d"],
+                     jac: Float[Array, "n d"], residual: Float[Array, " n"],
+                     jac_before: Float[Array, "n d"], residual_before: Float[Array, " n"]
+                     ) -> Float[Array, "d d"]:
+    """The structured secant update of ``S ≈ Σ rᵢ∇²rᵢ`` over an accepted ``step`` (Dennis,
+    Gay & Welsch's, as in NL2SOL), sized down first where it overstates the curvature seen
+    along the step; unchanged where the step shows no positive curvature (``yᵀs ≤ 0``).
+
+    ``y = Jᵀr − J₀ᵀr₀`` is the change of the gradient, ``y♯ = (J − J₀)ᵀr`` its part from the
+    residuals' own curvature; the update is the symmetric rank-two one closest to ``S`` with
+    ``S₊ s = y♯``.
+    """
+    gradient = jac.T @ residual
+    change = gradient - jac_before.T @ residual_before
+    sharp = gradient - jac_before.T @ residual
+    along = change @ step
+    seen = step @ curvature @ step
+    size = jnp.where(seen != 0, jnp.minimum(1.0, jnp.abs(step @ sharp) / jnp.where(
+        seen != 0, jnp.abs(seen), 1.0)), 1.0)
+    sized = size * curvature
+    miss = sharp - sized @ step
+    safe = jnp.where(along > 0, along, 1.0)
+    updated = (sized + (jnp.outer(miss, change) + jnp.outer(change, miss)) / safe
+               - (miss @ step) * jnp.outer(change, change) / safe**2)
+    return jnp.where(along > 0, updated, curvature)
 
 
 class BoxedDampedNewton(optx.AbstractDescent):
@@ -163,11 +192,19 @@ class BoxedDampedNewton(optx.AbstractDescent):
     ``λ I`` (``λ = 1/step size``, first 1), or with ``marquardt`` Marquardt's scale-free
     ``λ diag(JᵀJ)`` (first ``λ`` :data:`FIRST_DAMPING`): on a cost of millions in coordinates
     of order one, ``λ I`` takes bare Gauss–Newton steps and, when those fail, stalls.
+
+    With ``secant`` the damped system also holds a secant estimate ``S`` of the residuals' own
+    curvature ``Σ rᵢ∇²rᵢ`` (:func:`secant_curvature`, updated at every accepted point):
+    ``(JᵀJ + S + λD²) δ = Jᵀr``. Gauss–Newton alone converges only linearly where the
+    residuals stay far above the noise (each step leaves a fixed fraction of the excess cost);
+    ``S`` restores a superlinear tail. Where ``JᵀJ + S + λD²`` is not positive definite the
+    step is the Gauss–Newton one.
     """
 
     lower: Float[Array, " d"]
     upper: Float[Array, " d"]
     marquardt: bool = eqx.field(static=True, default=False)
+    secant: bool = eqx.field(static=True, default=False)
     linear_solver: lx.AbstractLinearSolver = lx.QR()
 
     def init(self, y, f_info_struct):
@@ -176,17 +213,24 @@ class BoxedDampedNewton(optx.AbstractDescent):
             return jnp.zeros(leaf.shape, leaf.dtype) if shaped else leaf
 
         f_info = jax.tree.map(zero, f_info_struct)
-        return _BoxState(y, f_info, jnp.zeros(y.shape, bool), jnp.ones(y.shape))
+        d = y.shape[0]
+        return _BoxState(y, f_info, jnp.zeros(d, bool), jnp.ones(d), jnp.zeros((d, d)),
+                         jnp.array(False))
 
     def query(self, y, f_info, state):
-        del state
         g = f_info.jac.transpose().mv(f_info.residual)
         held = ((y <= self.lower) & (g > 0)) | ((y >= self.upper) & (g < 0))
+        curvature = state.curvature
+        if self.secant:
+            updated = secant_curvature(
+                curvature, y - state.y, f_info.jac.as_matrix(), f_info.residual,
+                state.f_info.jac.as_matrix(), state.f_info.residual)
+            curvature = jnp.where(state.queried, updated, curvature)
         if not self.marquardt:
-            return _BoxState(y, f_info, held, jnp.ones(y.shape))
+            return _BoxState(y, f_info, held, jnp.ones(y.shape), curvature, jnp.array(True))
         norms = jnp.linalg.norm(f_info.jac.as_matrix(), axis=0)
         norms = jnp.maximum(norms, 1e-6 * jnp.max(norms) + jnp.finfo(norms.dtype).tiny)
-        return _BoxState(y, f_info, held, norms)
+        return _BoxState(y, f_info, held, norms, curvature, jnp.array(True))
 
     def step(self, step_size, state):
         tiny = step_size <= jnp.finfo(step_size.dtype).eps
@@ -199,8 +243,27 @@ class BoxedDampedNewton(optx.AbstractDescent):
         )
         vector = (f_info.residual, jnp.zeros_like(state.y))
         sol = lx.linear_solve(operator, vector, self.linear_solver, throw=False)
-        trial = jnp.clip(state.y - jnp.where(state.held, 0.0, sol.value), self.lower, self.upper)
+        delta = sol.value
+        if self.secant:
+            delta = self._with_curvature(state, damping, delta)
+        trial = jnp.clip(state.y - jnp.where(state.held, 0.0, delta), self.lower, self.upper)
         return trial - state.y, optx.RESULTS.promote(sol.result)
+
+    @staticmethod
+    def _with_curvature(state: _BoxState, damping, gauss_newton):
+        """The solution of ``(JᵀJ + S + λD²) δ = Jᵀr`` on the free coordinates (scaled by
+        ``D``, by Cholesky), or ``gauss_newton`` where that matrix is not positive definite."""
+        jac = state.f_info.jac.as_matrix() / state.norms
+        free = ~state.held
+        matrix = jac.T @ jac + state.curvature / jnp.outer(state.norms, state.norms)
+        matrix = jnp.where(jnp.outer(free, free), matrix, 0.0)
+        matrix = matrix + jnp.diag(jnp.where(free, damping, 1.0))
+        factor = jnp.linalg.cholesky(matrix)
+        scaled = jax.scipy.linalg.cho_solve((factor, True),
+                                            jnp.where(free, jac.T @ state.f_info.residual, 0.0))
+        delta = scaled / state.norms
+        usable = jnp.all(jnp.isfinite(factor)) & jnp.all(jnp.isfinite(delta))
+        return jnp.where(usable, delta, gauss_newton)
 
 
 class BoundedLevenbergMarquardt(optx.AbstractGaussNewton):
@@ -221,14 +284,15 @@ shrunk 4⁶ ≈ 4,000-fold: the cost no longer falls above round-off)."""
 
 
 def _bounded_solve(residuals: Residuals, args, start, lower, upper, free, rtol, atol, ftol,
-                   max_steps, marquardt=False):
+                   max_steps, marquardt=False, secant=False):
     """:class:`BoundedLevenbergMarquardt` stepped in a loop that also stops on ``ftol``."""
     fn = dense_jacobian(lambda y: residuals(jnp.where(free, y, start), args))
 
     def with_aux(y, _):
         return fn(y), None
 
-    solver = BoundedLevenbergMarquardt(rtol, atol, BoxedDampedNewton(lower, upper, marquardt))
+    descent = BoxedDampedNewton(lower, upper, marquardt, secant)
+    solver = BoundedLevenbergMarquardt(rtol, atol, descent)
     tags = frozenset()
     state = solver.init(with_aux, start, None, {}, jax.eval_shape(fn, start), None, tags)
     state, static = eqx.partition(state, eqx.is_array)  # the loop carries arrays only
@@ -292,6 +356,7 @@ def bounded_least_squares(
     ftol: float = 0.0,
     max_steps: int,
     marquardt: bool = False,
+    secant: bool = False,
     solve: Callable | None = None,
 ) -> BoundedSolution:
     """Levenberg–Marquardt (:class:`BoundedLevenbergMarquardt`) of ``residuals(p, args)`` on
@@ -302,7 +367,8 @@ def bounded_least_squares(
     every fitted set, start and box of the same size. It stops on optimistix's ``rtol``/``atol``
     (step and residuals), after ``max_steps``, or (``ftol > 0``) when an accepted step lowers
     the cost by less than ``ftol`` of it or :data:`STALL_STEPS` steps in a row are rejected.
-    ``marquardt`` chooses the damping (:class:`BoxedDampedNewton`).
+    ``marquardt`` chooses the damping, ``secant`` adds the residuals' curvature to the damped
+    system (:class:`BoxedDampedNewton`).
     ``solve`` is ``_bounded_solve`` compiled ahead by the caller (to time it). The value is the
     last accepted point if its cost is finite and below the start's, else the start.
     """
@@ -312,7 +378,7 @@ def bounded_least_squares(
     free = jnp.ones(p.shape, bool) if free is None else jnp.asarray(free, dtype=bool)
     p = jnp.where(free, jnp.clip(p, lower, upper), p)
     end, result, steps, cost_start, cost, linearization = solve(
-        residuals, args, p, lower, upper, free, rtol, atol, ftol, max_steps, marquardt
+        residuals, args, p, lower, upper, free, rtol, atol, ftol, max_steps, marquardt, secant
     )
     cost_start, cost = float(cost_start), float(cost)
     cost_start = cost_start if math.isfinite(cost_start) else math.inf
@@ -401,4 +467,5 @@ __all__ = [
     "bounded_least_squares_of",
     "dense_jacobian",
     "in_fit_words",
+    "secant_curvature",
 ]

@@ -404,7 +404,7 @@ class Engine:
             np.concatenate([u.space.lower[cols] / scale, p0[len(cols):]]),
             np.concatenate([u.space.upper[cols] / scale, p0[len(cols):]]),
             free=np.arange(len(index)) < len(cols), rtol=LM_RTOL, atol=LM_RTOL, ftol=LM_RTOL,
-            max_steps=self.max_iterations, marquardt=True,
+            max_steps=self.max_iterations, marquardt=True, secant=True,
         )
         if fit.cost < fit.cost_start:  # else x keeps its exact start values
             x[cols] = fit.value[: len(cols)] * scale
