@@ -3,6 +3,7 @@
 import jax.numpy as jnp
 import numpy as np
 import pytest
+import scipy.optimize as so
 
 from jaxflex.least_squares import (
     bounded_least_squares,
@@ -81,3 +82,18 @@ def test_with_the_secant_curvature_a_large_residual_fit_converges_in_fewer_steps
     host = bounded_least_squares_of(system, 2, *box, secant=True, **tight)
     assert host.steps == curved.steps
     np.testing.assert_allclose(host.value, curved.value, rtol=0, atol=1e-12)
+
+
+def test_with_the_secant_curvature_a_box_problem_ends_where_scipy_bvls_does():
+    """Linear residuals have no curvature of their own: with the secant estimate and its
+    Cholesky step, parameters held on their bounds still end where SciPy's BVLS puts them."""
+    rng = np.random.default_rng(5)
+    a, b = rng.normal(size=(40, 5)), 3.0 * rng.normal(size=40)
+    lower, upper = -0.2 * np.ones(5), 0.3 * np.ones(5)
+    fit = bounded_least_squares_of(lambda p: (a @ p - b, a), 40, np.zeros(5), lower, upper,
+                                   rtol=1e-12, atol=1e-14, ftol=1e-15, max_steps=100,
+                                   marquardt=True, secant=True)
+    ref = so.lsq_linear(a, b, (lower, upper), method="bvls", tol=1e-14)
+    assert np.sum(ref.active_mask != 0) >= 2  # the bounds matter
+    np.testing.assert_allclose(fit.value, ref.x, rtol=0, atol=1e-7)
+    assert fit.cost == pytest.approx(2 * ref.cost, rel=1e-12)
