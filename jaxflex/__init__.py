@@ -33,7 +33,7 @@ def _configure_jax() -> None:
 
     jax.config.update("jax_enable_x64", True)
 
-    from jaxflex.parallel import configure_host_devices
+    from jaxflex._host import configure_host_devices
 
     configure_host_devices()
 

@@ -51,7 +51,8 @@ def test_every_top_level_name_is_imported_on_first_use_from_its_module():
 def test_importing_jaxflex_loads_no_jax_and_sets_jax_up_when_it_is_imported():
     """``import jaxflex`` is light; whoever imports JAX afterwards gets it set up as jaxflex
     needs (float64, ``JAXFLEX_HOST_DEVICES`` CPU devices), as when jaxflex is imported after
-    JAX."""
+    JAX, or first through :mod:`jaxflex.parallel`, which imports JAX before its own names
+    exist."""
     script = (
         "import sys\n"
         "{first}\n"
@@ -61,7 +62,8 @@ def test_importing_jaxflex_loads_no_jax_and_sets_jax_up_when_it_is_imported():
     )
     env = os.environ | {"JAXFLEX_HOST_DEVICES": "2", "PYTHONPATH": str(ROOT)}
     env.pop("JAX_ENABLE_X64", None)
-    for first, jax_loaded in (("import jaxflex", False), ("import jax; import jaxflex", True)):
+    for first, jax_loaded in (("import jaxflex", False), ("import jax; import jaxflex", True),
+                              ("import jaxflex.parallel", True)):
         done = subprocess.run([sys.executable, "-c", script.format(first=first)], env=env,
                               capture_output=True, text=True, check=True)
         assert done.stdout.split() == [str(jax_loaded), "True", "2"]
