@@ -233,10 +233,11 @@ class BoxedDampedNewton(optx.AbstractDescent):
                                        jac_before, before.residual)
             curvature = jnp.where(state.queried, updated, curvature)
             # NL2SOL's choice of model: the one whose prediction of this step's cost was closer
+            # (none before the first step: that one is Gauss–Newton's)
             linear = jnp.sum((before.residual + jac_before @ step) ** 2)
             cost = jnp.sum(f_info.residual**2)
-            curved = (jnp.abs(cost - linear - step @ state.curvature @ step)
-                      <= jnp.abs(cost - linear))
+            curved = state.queried & (jnp.abs(cost - linear - step @ state.curvature @ step)
+                                      <= jnp.abs(cost - linear))
         if not self.marquardt:
             return _BoxState(y, f_info, held, jnp.ones(y.shape), curvature, jnp.array(True),
                              curved)
