@@ -225,25 +225,30 @@ class BoxedDampedNewton(optx.AbstractDescent):
     def query(self, y, f_info, state):
         g = f_info.jac.transpose().mv(f_info.residual)
         held = ((y <= self.lower) & (g > 0)) | ((y >= self.upper) & (g < 0))
+        jac = f_info.jac.as_matrix() if self.marquardt or self.secant else None
+        norms = jnp.ones(y.shape)
+        if self.marquardt:
+            norms = jnp.linalg.norm(jac, axis=0)
+            norms = jnp.maximum(norms, 1e-6 * jnp.max(norms) + jnp.finfo(norms.dtype).tiny)
         curvature, curved = state.curvature, jnp.array(False)
         if self.secant:
-            step, before = y - state.y, state.f_info
-            jac_before = before.jac.as_matrix()
-            updated = secant_curvature(curvature, step, f_info.jac.as_matrix(), f_info.residual,
-                                       jac_before, before.residual)
-            curvature = jnp.where(state.queried, updated, curvature)
-            # NL2SOL's choice of model: the one whose prediction of this step's cost was closer
-            # (none before the first step: that one is Gauss–Newton's)
-            linear = jnp.sum((before.residual + jac_before @ step) ** 2)
-            cost = jnp.sum(f_info.residual**2)
-            curved = state.queried & (jnp.abs(cost - linear - step @ state.curvature @ step)
-                                      <= jnp.abs(cost - linear))
-        if not self.marquardt:
-            return _BoxState(y, f_info, held, jnp.ones(y.shape), curvature, jnp.array(True),
-                             curved)
-        norms = jnp.linalg.norm(f_info.jac.as_matrix(), axis=0)
-        norms = jnp.maximum(norms, 1e-6 * jnp.max(norms) + jnp.finfo(norms.dtype).tiny)
+            curvature, curved = self._secant(y, f_info.residual, jac, state)
         return _BoxState(y, f_info, held, norms, curvature, jnp.array(True), curved)
+
+    @staticmethod
+    def _secant(y, residual, jac, state: _BoxState):
+        """The curvature updated over the step from ``state``'s point to ``y``, and whether
+        the next step uses it: NL2SOL's choice, the model whose prediction of this step's cost
+        was closer (none before the first step: that one is Gauss–Newton's)."""
+        step, before = y - state.y, state.f_info
+        jac_before = before.jac.as_matrix()
+        updated = secant_curvature(state.curvature, step, jac, residual, jac_before,
+                                   before.residual)
+        linear = jnp.sum((before.residual + jac_before @ step) ** 2)
+        cost = jnp.sum(residual**2)
+        curved = state.queried & (jnp.abs(cost - linear - step @ state.curvature @ step)
+                                  <= jnp.abs(cost - linear))
+        return jnp.where(state.queried, updated, state.curvature), curved
 
     def step(self, step_size, state):
         tiny = step_size <= jnp.finfo(step_size.dtype).eps
