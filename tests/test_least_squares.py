@@ -80,7 +80,7 @@ def test_with_the_secant_curvature_a_large_residual_fit_converges_in_fewer_steps
         return np.array([x + 1.0, 0.7 * x**2 + x - 1.0]), np.array([[1.0], [1.4 * x + 1.0]])
 
     host = bounded_least_squares_of(system, 2, *box, secant=True, **tight)
-    assert host.steps == curved.steps
+    assert host.result == "successful" and 2 * host.steps < plain.steps
     np.testing.assert_allclose(host.value, curved.value, rtol=0, atol=1e-12)
 
 
