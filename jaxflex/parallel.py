@@ -15,8 +15,7 @@ a machine whose default backend is an accelerator (one device there: no split).
 
 from __future__ import annotations
 
-from collections.abc import Callable, Iterable
-from concurrent.futures import ThreadPoolExecutor
+from collections.abc import Callable
 from typing import TypeVar
 
 import jax
@@ -46,7 +45,6 @@ their help."""
 _AXIS = "population"
 
 _T = TypeVar("_T")
-_I = TypeVar("_I")
 
 
 def population_devices() -> list[jax.Device]:
@@ -138,23 +136,6 @@ def population_vmap(fn: Callable[..., _T], population, *args) -> _T:
     return gathered(jax.tree.map(lambda y: y[:size], jax.jit(body)(population, *args)))
 
 
-def side_by_side(fn: Callable[[_I], _T], items: Iterable[_I]) -> list[_T]:
-    """``[fn(item) for item in items]``, one thread per CPU device (:func:`population_devices`).
-
-    For independent host-driven work made of single runs (a profile's golden-section search:
-    one simulation after another): XLA runs such a program on one core, and the calls of
-    several threads run side by side, as a population's shares do. With one device
-    (``JAXFLEX_HOST_DEVICES=1``: other processes fill the cores) or on an accelerator, one item
-    after another. Each item's result is what ``fn`` alone computes for it.
-    """
-    items = list(items)
-    workers = min(len(population_devices()) if _on_cpu() else 1, len(items))
-    if workers <= 1:
-        return [fn(item) for item in items]
-    with ThreadPoolExecutor(workers, thread_name_prefix="jaxflex") as pool:
-        return list(pool.map(fn, items))
-
-
 __all__ = [
     "BLOCK",
     "LANES",
@@ -166,6 +147,5 @@ __all__ = [
     "gathered_sharding",
     "population_devices",
     "population_vmap",
-    "side_by_side",
     "usable_cores",
 ]

@@ -193,6 +193,32 @@ def test_score_statistic_is_the_gauss_newton_cost_drop(payload_case):
         assert np.linalg.norm(fd - column) < 1e-3 * np.linalg.norm(column)
 
 
+def test_profiles_side_by_side_reach_the_payload_each_as_it_would_alone(payload_case):
+    """The profiles of several candidates (every member of the Stribeck grid too) taken side by
+    side, one batched simulation per level, are each the very bytes of the profile taken alone;
+    the hidden payload's reaches its mass to first order (the base parameters 3 % off) and the
+    lowest cost by far."""
+    records, _, _ = payload_case
+    engine = Engine.build(Model(), candidate_set(["payload", "gravity", "stribeck"]), records,
+                          START, NOISE)
+    u = engine.universe
+    x = u.vector(START)
+    names = [u.candidates[s.candidate].name for s in u.slots]
+    slots = [i for i, n in enumerate(names) if n in ("payload", "gravity", "stribeck")]
+    assert len(slots) == 2 + len(Stribeck.grid())
+    requests = [(x, (), i, {}) for i in slots]
+    together = engine.profile_starts(requests)
+    for request, (start, cost) in zip(requests, together, strict=True):
+        ((alone, alone_cost),) = engine.profile_starts([request])
+        assert alone.tobytes() == start.tobytes() and alone_cost == cost
+    costs = {names[i]: cost for i, (_, cost) in zip(slots, together, strict=True)}
+    assert min(costs, key=costs.get) == "payload"
+    payload = names.index("payload")
+    start, cost = together[slots.index(payload)]
+    assert u.params(start, [payload])["m_p"] == pytest.approx(0.03, rel=0.15)
+    assert cost < 0.1 * engine.forward_cost(x)
+
+
 @pytest.mark.parametrize("name", [
     n if n in ("payload", "delay", "stribeck") else pytest.param(n, marks=pytest.mark.slow)
     for n in sorted(MODERATE)

@@ -78,41 +78,6 @@ def test_pytrees_blocks_and_jit():
         population_vmap(fn, {"a": jnp.ones(()), "b": jnp.ones(())}, 0.0)
 
 
-SIDE_BY_SIDE_CHECKS = textwrap.dedent(
-    """
-    import threading
-    import jax, numpy as np
-    from jaxflex import Model, reference_parameters, simulate
-    from jaxflex.parallel import side_by_side
-    from jaxflex.signals import reference_input
-
-    torque = reference_input("pulse", duration=0.3)[1]
-    params = [{**reference_parameters(), "E": e} for e in np.linspace(60e9, 80e9, 5)]
-    threads = set()
-    def run(p):  # one simulation after another on each thread, as a profile's search runs
-        threads.add(threading.current_thread().name)
-        return np.asarray(simulate(Model(), p, torque).tip_acceleration)
-    together = side_by_side(run, params)
-    used = len(threads)
-    alone = [run(p) for p in params]
-    assert all(a.tobytes() == b.tobytes() for a, b in zip(together, alone, strict=True))
-    assert len({a.tobytes() for a in alone}) == len(params)  # in order, each its own run
-    print(len(jax.devices()), used)
-    """
-)
-
-
-def test_work_side_by_side_runs_on_a_thread_per_device_with_the_bytes_of_one_run_alone():
-    """:func:`side_by_side` runs single simulations on one thread per CPU device (one thread
-    with one device), each result in its item's place and the very bytes of the run alone."""
-    for devices in ("2", "1"):
-        env = {**os.environ, "JAXFLEX_HOST_DEVICES": devices, "JAX_PLATFORMS": "cpu"}
-        result = subprocess.run([sys.executable, "-c", SIDE_BY_SIDE_CHECKS], env=env,
-                                capture_output=True, text=True, timeout=300)
-        assert result.returncode == 0, result.stderr[-3000:]
-        assert result.stdout.split()[-2:] == [devices, devices]
-
-
 def test_device_count_setting_is_validated(monkeypatch):
     monkeypatch.setenv("JAXFLEX_HOST_DEVICES", "0")
     with pytest.raises(ValueError, match="JAXFLEX_HOST_DEVICES='0' must be an integer >= 1"):

@@ -5,15 +5,13 @@ from __future__ import annotations
 
 import dataclasses
 import math
-from collections.abc import Callable, Iterable, Mapping, Sequence
-from functools import partial
+from collections.abc import Iterable, Mapping, Sequence
 
 import numpy as np
 
-from jaxflex.discovery._engine import Engine
+from jaxflex.discovery._engine import Engine, ProfileRequest
 from jaxflex.discovery.report import Confirmation
 from jaxflex.discovery.scores import ScoreResult, lr_test
-from jaxflex.parallel import side_by_side
 from jaxflex.parameters import ParameterSpace
 
 BOUND_TOL = 1e-3
@@ -25,7 +23,7 @@ not confirmed: the fit used it only to polish the others."""
 def profile_scan(engine: Engine, x: np.ndarray, active: Sequence[int],
                  ranking: Sequence[ScoreResult], level: float, skip: Iterable[str] = ()):
     """Each candidate's profile drop: the cost at the fit minus the lowest cost along its 1-D
-    profile (fitted parameters re-optimised to first order, :meth:`Engine.profile_start`);
+    profile (fitted parameters re-optimised to first order, :meth:`Engine.profile_starts`);
     the candidates in ``skip`` (refitted already) keep their entry as it is.
 
     The score test is local: when the misfit is large (an effect that shifts a resonance by
@@ -39,9 +37,9 @@ def profile_scan(engine: Engine, x: np.ndarray, active: Sequence[int],
     current = engine.forward_cost(x)
     skip = set(skip)
     scanned = [r for r in ranking if r.effect not in skip]
-    profiles = dict(zip((r.effect for r in scanned), side_by_side(
-        lambda r: engine.start(x, active, names.index(r.effect), r.estimate, with_cost=True),
-        scanned), strict=True))
+    profiles = dict(zip((r.effect for r in scanned), engine.starts(
+        [(x, active, names.index(r.effect), r.estimate) for r in scanned], with_cost=True),
+        strict=True))
     out, starts = [], {}
     for r in ranking:
         if r.effect not in profiles:
@@ -72,17 +70,30 @@ def confirm(engine: Engine, x: np.ndarray, cost: float, active: Sequence[int],
     the compensation left, and the refit stays in that basin."""
     u = engine.universe
     released = engine.released(x, active) if engine.centred else None
-    jobs: list[tuple[int, Callable[[], tuple[int, np.ndarray]]]] = []  # (request, its start)
+    asked: list[ProfileRequest] = []  # the profiles to take, side by side
+
+    def profiled(at: np.ndarray, members: Sequence[int], guess: Mapping[str, float]
+                 ) -> list[int]:
+        asked.extend((at, active, i, guess) for i in members)
+        return list(range(len(asked) - len(members), len(asked)))
+
+    # (request, a (slot, start) found already or the places in `asked` of the best one's profiles)
+    chosen: list[tuple[int, tuple[int, np.ndarray] | list[int]]] = []
     for n, (candidate, guess, start) in enumerate(requests):
+        members = [i for i, s in enumerate(u.slots) if s.candidate == candidate]
         if start is not None:
-            jobs.append((n, lambda start=start: start))  # found already
+            chosen.append((n, start))
         else:  # every member of a profile: the profiled cost may misjudge a large effect
-            jobs += [(n, partial(_member_start, engine, x, active, i, guess))
-                     for i, s in enumerate(u.slots) if s.candidate == candidate]
+            chosen += [(n, [k]) for k in profiled(x, members, guess)]
         if released is not None:
-            jobs.append((n, partial(engine.start, released, active, candidate, guess)))
-    tries = [(n, *found) for (n, _), found in  # (request, slot, start), profiled side by side
-             zip(jobs, side_by_side(lambda job: job[1](), jobs), strict=True)]
+            chosen.append((n, profiled(released, members, guess)))
+    found = engine.profile_starts(asked)
+    tries = []  # (request, slot, start)
+    for n, choice in chosen:
+        if isinstance(choice, list):
+            k = min(choice, key=lambda k: found[k][1])
+            choice = (asked[k][2], found[k][0])
+        tries.append((n, *choice))
     fits = engine.fit_many([(x_start, list(active) + [slot]) for _, slot, x_start in tries])
     out = []
     for n, (candidate, _, _) in enumerate(requests):
@@ -92,12 +103,6 @@ def confirm(engine: Engine, x: np.ndarray, cost: float, active: Sequence[int],
         out.append((_confirmation(engine, cost, active, candidate, slot, x1, cost1, level),
                     slot, x1, cost1))
     return out
-
-
-def _member_start(engine: Engine, x: np.ndarray, active: Sequence[int], slot: int,
-                  guess: Mapping[str, float]) -> tuple[int, np.ndarray]:
-    """``(slot, start)`` of one member of a profiled candidate (:meth:`Engine.profile_start`)."""
-    return slot, engine.profile_start(x, active, slot, guess)[0]
 
 
 def _confirmation(engine: Engine, cost: float, active: Sequence[int], candidate: int,

@@ -54,9 +54,16 @@ PROFILE_POINTS = 13
 """Start values of a new effect's parameters tried before the refit (unit-box diagonal)."""
 
 
-GOLDEN_STEPS = 12
+PROFILE_REFINED = 15
 
-"""Golden-section steps refining the best start value."""
+"""Points of a profile's each finer grid, evenly spaced between the lowest point's neighbours
+(a fixed number, so that a profile's points do not depend on the profiles beside it)."""
+
+
+PROFILE_WIDTH = 5e-4
+
+"""A profile is refined until the neighbours of its lowest point are this close (unit box;
+the final bracket of twelve golden-section steps from the first grid)."""
 
 
 PATTERN_ROUNDS = 2
@@ -83,6 +90,12 @@ LM_RTOL = 1e-8
 
 """A refit stops when an accepted step lowers the cost by less than this fraction (or on
 optimistix's test with this ``rtol`` and ``atol``)."""
+
+
+ProfileRequest = tuple[np.ndarray, Sequence[int], int, Mapping[str, float]]
+
+"""``(x, active, slot, guess)``: a slot's profile from the fit ``x`` of the ``active`` slots,
+with the score test's estimate ``guess`` (:meth:`Engine.profile_starts`)."""
 
 
 @dataclass
@@ -410,75 +423,69 @@ class Engine:
             x[cols] = fit.value[: len(cols)] * scale
         return x
 
-    def profile_start(self, x: np.ndarray, active: Sequence[int], slot: int,
-                      guess: Mapping[str, float]) -> tuple[np.ndarray, float]:
+    def profile_starts(self, requests: Sequence[ProfileRequest]) -> list[tuple[np.ndarray, float]]:
         """Start values of a new slot's parameters (the others kept at ``x``) and the profiled
-        cost there.
+        cost there, for each ``(x, active, slot, guess)`` of ``requests``.
 
         A profile along the diagonal of the new parameters' unit box (a grid and the score
-        test's one-step estimate in one batched call, then golden-section refinement) of the
-        cost with the fitted parameters re-optimised to first order: the residual is projected
-        off the span of their Jacobian at ``x``. Without that, parameters that compensated the
-        missing effect would pull its start towards the null.
+        test's one-step estimate), then grids ever finer around the lowest point until its
+        neighbours are :data:`PROFILE_WIDTH` apart, of the cost with the fitted parameters
+        re-optimised to first order: the residual is projected off the span of their Jacobian
+        at ``x``. Without that, parameters that compensated the missing effect would pull its
+        start towards the null. Every profile's points of one level are one batched call
+        (:meth:`predicted_many`); each profile's result is the one it gives alone.
         """
-        u = self.universe
-        idx = u.index(u.slots[slot].tested)
-        sub = ParameterSpace([u.space[n] for n in u.slots[slot].tested])
-        cols = np.flatnonzero(u.active_mask(active))
-        pred, jac = self.evaluate(x, np.zeros(len(x), bool), cols)
-        _, jf = self._system(pred, jac)
-        norms = np.linalg.norm(jf, axis=0)
-        q, rr = np.linalg.qr(jf / np.where(norms > 0, norms, 1.0))
-        q = q[:, np.abs(np.diag(rr)) > 1e-10]
+        bases: dict[tuple, np.ndarray] = {}
+        profiles = [_Profile.of(self, request, bases) for request in requests]
+        if not profiles:
+            return []
+        grids = [p.grid() for p in profiles]
+        for profile, grid, costs in zip(profiles, grids, self._profiled(profiles, grids),
+                                        strict=True):
+            profile.add(grid, costs)
+        while pending := [p for p in profiles if p.width > PROFILE_WIDTH]:
+            finer = [p.finer(PROFILE_REFINED) for p in pending]
+            for profile, grid, costs in zip(pending, finer, self._profiled(pending, finer),
+                                            strict=True):
+                profile.add(grid, costs)
+        return [p.best() for p in profiles]
 
-        def at(ts: np.ndarray) -> np.ndarray:
-            xs = np.repeat(x[None], len(ts), axis=0)
-            units = np.repeat(np.asarray(ts, dtype=float)[:, None], len(idx), axis=1)
-            xs[:, idx] = np.asarray(sub.to_vector(sub.from_unit(units)))
-            return xs
-
-        def projected(r: np.ndarray) -> np.ndarray:
-            r = r - (r @ q) @ q.T
-            costs = np.einsum("...i,...i->...", r, r)
-            return np.where(np.isfinite(costs), costs, np.inf)
-
-        def cost_at(t: float) -> float:
-            pred = np.asarray(forward(self.problem, jnp.asarray(at(np.array([t]))[0])))
-            return float(projected(self._system(pred, None)[0]))
-
-        grid = np.linspace(0.0, 1.0, PROFILE_POINTS)
-        est = np.array([guess.get(o, np.nan) for o in u.slots[slot].tested_own])
-        if np.all(np.isfinite(est)) and np.all(est > sub.lower) and np.all(est < sub.upper):
-            grid = np.sort(np.append(
-                grid, float(np.mean(np.asarray(sub.to_unit(sub.from_vector(est)))))))
-        costs = projected(np.stack([self._system(p, None)[0]
-                                    for p in self.predicted_many(at(grid))]))
-        k = int(np.argmin(costs))
-        lo, hi = grid[max(k - 1, 0)], grid[min(k + 1, len(grid) - 1)]
-        ratio = (math.sqrt(5.0) - 1.0) / 2.0
-        a, b = hi - ratio * (hi - lo), lo + ratio * (hi - lo)
-        fa, fb = cost_at(a), cost_at(b)
-        for _ in range(GOLDEN_STEPS):
-            if fa < fb:
-                hi, b, fb = b, a, fa
-                a = hi - ratio * (hi - lo)
-                fa = cost_at(a)
-            else:
-                lo, a, fa = a, b, fb
-                b = lo + ratio * (hi - lo)
-                fb = cost_at(b)
-        cost, t = min([(float(costs[k]), grid[k]), (fa, a), (fb, b)])
-        return at(np.array([t]))[0], cost
+    def _profiled(self, profiles: Sequence[_Profile], grids: Sequence[np.ndarray]
+                  ) -> list[np.ndarray]:
+        """The projected costs of each profile at its grid points, in one batched call."""
+        preds = self.predicted_many(np.concatenate([p.at(g) for p, g in
+                                                    zip(profiles, grids, strict=True)]))
+        costs, at = [], 0
+        for profile, grid in zip(profiles, grids, strict=True):
+            costs.append(profile.projected(np.stack(
+                [self._system(p, None)[0] for p in preds[at:at + len(grid)]])))
+            at += len(grid)
+        return costs
 
     def start(self, x: np.ndarray, active: Sequence[int], candidate: int,
               guess: Mapping[str, float], with_cost: bool = False):
         """The slot and start of a candidate (and the profiled cost there): for a profiled
-        candidate the member whose profile (:meth:`profile_start`) reaches the lowest cost."""
+        candidate the member whose profile (:meth:`profile_starts`) reaches the lowest cost."""
+        return self.starts([(x, active, candidate, guess)], with_cost)[0]
+
+    def starts(self, requests: Sequence[tuple[np.ndarray, Sequence[int], int,
+                                              Mapping[str, float]]],
+               with_cost: bool = False) -> list[tuple]:
+        """:meth:`start` of each ``(x, active, candidate, guess)``, every member of every
+        candidate profiled side by side."""
         u = self.universe
-        slots = [i for i, s in enumerate(u.slots) if s.candidate == candidate]
-        starts = [(self.profile_start(x, active, i, guess), i) for i in slots]
-        (x_start, profiled), slot = min(starts, key=lambda item: item[0][1])
-        return (slot, x_start, profiled) if with_cost else (slot, x_start)
+        members = [[i for i, s in enumerate(u.slots) if s.candidate == candidate]
+                   for _, _, candidate, _ in requests]
+        found = iter(self.profile_starts([(x, active, i, guess)
+                                          for (x, active, _, guess), slots
+                                          in zip(requests, members, strict=True)
+                                          for i in slots]))
+        out = []
+        for slots in members:
+            (x_start, profiled), slot = min(((next(found), i) for i in slots),
+                                            key=lambda item: item[0][1])
+            out.append((slot, x_start, profiled) if with_cost else (slot, x_start))
+        return out
 
     def predictions(self, x: np.ndarray, records: Dataset) -> tuple[Outputs, ...]:
         return simulate_all(self.universe, x, records, self.record_start,
@@ -565,6 +572,86 @@ class Engine:
             results.append(dataclasses.replace(best, p_value=p, significant=p < alpha / m))
         results.sort(key=lambda t: (t.p_value, -(t.statistic - t.dof)))
         return results
+
+
+@dataclass
+class _Profile:
+    """One profile of :meth:`Engine.profile_starts`: a slot's parameters along the diagonal of
+    their unit box (``t`` from 0 to 1), the others kept at ``x``; the points tried so far and
+    their costs with the fitted parameters' first-order response projected out (``basis``)."""
+
+    x: np.ndarray
+    index: np.ndarray  # the slot's tested parameters in x
+    space: ParameterSpace  # theirs
+    basis: np.ndarray  # orthonormal columns spanning the fitted parameters' Jacobian at x
+    estimate: float | None  # the score test's one-step estimate on the diagonal
+    ts: np.ndarray = dataclasses.field(default_factory=lambda: np.zeros(0))
+    costs: np.ndarray = dataclasses.field(default_factory=lambda: np.zeros(0))
+
+    @classmethod
+    def of(cls, engine: Engine, request: ProfileRequest, bases: dict) -> _Profile:
+        """The profile of ``request``; the fitted parameters' basis shared through ``bases``
+        by the profiles from the same fit."""
+        x, active, slot, guess = request
+        u = engine.universe
+        key = (x.tobytes(), tuple(active))
+        if key not in bases:
+            pred, jac = engine.evaluate(x, np.zeros(len(x), bool),
+                                        np.flatnonzero(u.active_mask(active)))
+            _, jf = engine._system(pred, jac)
+            norms = np.linalg.norm(jf, axis=0)
+            q, rr = np.linalg.qr(jf / np.where(norms > 0, norms, 1.0))
+            bases[key] = q[:, np.abs(np.diag(rr)) > 1e-10]
+        space = ParameterSpace([u.space[n] for n in u.slots[slot].tested])
+        est = np.array([guess.get(o, np.nan) for o in u.slots[slot].tested_own])
+        inside = np.all(np.isfinite(est)) and np.all(est > space.lower) and np.all(
+            est < space.upper)
+        estimate = (float(np.mean(np.asarray(space.to_unit(space.from_vector(est)))))
+                    if inside else None)
+        return cls(x, u.index(u.slots[slot].tested), space, bases[key], estimate)
+
+    def grid(self) -> np.ndarray:
+        """The first points: :data:`PROFILE_POINTS` evenly spaced and the estimate."""
+        grid = np.linspace(0.0, 1.0, PROFILE_POINTS)
+        return grid if self.estimate is None else np.sort(np.append(grid, self.estimate))
+
+    def at(self, ts: np.ndarray) -> np.ndarray:
+        """Universe vectors at the diagonal points ``ts``."""
+        xs = np.repeat(self.x[None], len(ts), axis=0)
+        units = np.repeat(np.asarray(ts, dtype=float)[:, None], len(self.index), axis=1)
+        xs[:, self.index] = np.asarray(self.space.to_vector(self.space.from_unit(units)))
+        return xs
+
+    def projected(self, r: np.ndarray) -> np.ndarray:
+        """Costs of the residual rows ``r`` off the fitted parameters' span; non-finite → inf."""
+        r = r - (r @ self.basis) @ self.basis.T
+        costs = np.einsum("...i,...i->...", r, r)
+        return np.where(np.isfinite(costs), costs, np.inf)
+
+    def add(self, ts: np.ndarray, costs: np.ndarray) -> None:
+        order = np.argsort(np.concatenate([self.ts, ts]), kind="stable")
+        self.ts = np.concatenate([self.ts, ts])[order]
+        self.costs = np.concatenate([self.costs, costs])[order]
+
+    @property
+    def bracket(self) -> tuple[float, float]:
+        """The neighbours of the lowest point tried."""
+        k = int(np.argmin(self.costs))
+        return float(self.ts[max(k - 1, 0)]), float(self.ts[min(k + 1, len(self.ts) - 1)])
+
+    @property
+    def width(self) -> float:
+        lo, hi = self.bracket
+        return hi - lo
+
+    def finer(self, points: int) -> np.ndarray:
+        """``points`` evenly spaced inside the bracket."""
+        return np.linspace(*self.bracket, points + 2)[1:-1]
+
+    def best(self) -> tuple[np.ndarray, float]:
+        """The lowest point tried (universe vector) and its cost."""
+        k = int(np.argmin(self.costs))
+        return self.at(self.ts[k:k + 1])[0], float(self.costs[k])
 
 
 def simulate_all(universe: Universe, x: np.ndarray, records: Dataset,
