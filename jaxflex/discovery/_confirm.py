@@ -34,12 +34,12 @@ def profile_scan(engine: Engine, x: np.ndarray, active: Sequence[int],
     """
     u = engine.universe
     names = [c.name for c in u.candidates]
-    current = engine.forward_cost(x)
     skip = set(skip)
     scanned = [r for r in ranking if r.effect not in skip]
     profiles = dict(zip((r.effect for r in scanned), engine.starts(
         [(x, active, names.index(r.effect), r.estimate) for r in scanned], with_cost=True),
         strict=True))
+    current = engine.forward_cost(x)  # its prediction kept from the profiles' Jacobian
     out, starts = [], {}
     for r in ranking:
         if r.effect not in profiles:

@@ -27,7 +27,6 @@ from jaxflex.discovery._universe import (
     MANY,
     Problem,
     Universe,
-    forward,
     forward_many,
     jacobian_block,
 )
@@ -351,8 +350,8 @@ class Engine:
         return trial
 
     def forward_cost(self, x: np.ndarray) -> float:
-        """The fit cost at ``x`` (one simulation, no derivatives)."""
-        cost = self.fit_cost(np.asarray(forward(self.problem, jnp.asarray(x))))
+        """The fit cost at ``x`` (its prediction kept by :meth:`evaluate`, else one run)."""
+        cost = self.fit_cost(self.evaluate(x, np.zeros(len(x), bool), [])[0])
         return cost if math.isfinite(cost) else math.inf
 
     def predicted_many(self, xs: np.ndarray) -> np.ndarray:

@@ -167,10 +167,6 @@ jacobian_block = eqx.filter_jit(_block_impl)
 Jacobian of a discovery run."""
 
 
-forward = eqx.filter_jit(lambda problem, x: problem.predicted(x))
-"""Compiled prediction of a problem at the parameter vector ``x``."""
-
-
 forward_many = eqx.filter_jit(lambda problem, xs: population_vmap(problem.predicted, xs))
 """Compiled predictions of a problem at the rows of ``xs``, one batched call."""
 
