@@ -85,9 +85,10 @@ def timed(argv: list[str], env: dict[str, str], tree: Path) -> dict:
             "last_line": lines[-1] if lines else "", "load_average_before": os.getloadavg()[0]}
 
 
-PHASES = {  # phase of a discovery run → (module, object, attribute); absent ones are skipped
+PHASES = {  # phase of a discovery run → (module, object, attribute or "a|b": the first present)
     "Levenberg–Marquardt refits": ("jaxflex.discovery._engine", "Engine", "_lm"),
-    "profile scans and starts": ("jaxflex.discovery._engine", "Engine", "profile_start"),
+    "profile scans and starts": ("jaxflex.discovery._engine", "Engine",
+                                 "profile_starts|profile_start"),
     "score tests": ("jaxflex.discovery._engine", "Engine", "score_tests"),
     "base model's search and refinement": ("jaxflex.identification", None, "identify"),
     "runs of the refits, batched": ("jaxflex.discovery._engine", "Engine", "predictions_many"),
@@ -109,11 +110,13 @@ def timed(name, fn):
         finally:
             spent[name] += time.perf_counter() - t0
     return wrapper
-for name, (module, owner, attribute) in phases.items():
+for name, (module, owner, attributes) in phases.items():
     target = importlib.import_module(module)
     target = getattr(target, owner) if owner else target
-    if hasattr(target, attribute):
-        setattr(target, attribute, timed(name, getattr(target, attribute)))
+    for attribute in attributes.split("|"):
+        if hasattr(target, attribute):
+            setattr(target, attribute, timed(name, getattr(target, attribute)))
+            break
 from jaxflex.cli import main
 t0 = time.perf_counter()
 try:
