@@ -487,18 +487,16 @@ class Engine:
         return out
 
     def predictions(self, x: np.ndarray, records: Dataset) -> tuple[Outputs, ...]:
-        """The universe model's readings of ``records`` at ``x`` (:meth:`predictions_many`)."""
-        return self.predictions_many([x], records)[0]
+        return simulate_all(self.universe, x, records, self.record_start,
+                            self.problem.objective.channels)
 
     def predictions_many(self, xs: Sequence[np.ndarray], records: Dataset
                          ) -> list[tuple[Outputs, ...]]:
-        """The readings of ``records`` at each of ``xs``: from rest, each record's runs are one
-        batched simulation (rows padded to a multiple of :data:`jaxflex.parallel.LANES`, so
-        that one program per record length serves one run or many); from an estimated state,
-        one run after another."""
-        if self.record_start[0] != "rest":
-            return [simulate_all(self.universe, x, records, self.record_start,
-                                 self.problem.objective.channels) for x in xs]
+        """:meth:`predictions` at each of ``xs``: from rest, each record's runs are one batched
+        simulation (rows padded to a multiple of :data:`jaxflex.parallel.LANES`, so that few
+        sizes compile); from an estimated state, one run after another."""
+        if self.record_start[0] != "rest" or len(xs) < 2:
+            return [self.predictions(x, records) for x in xs]
         u = self.universe
         params = [{**u.fixed, **dict(zip(u.space.names, map(float, x), strict=True))}
                   for x in xs]
