@@ -80,6 +80,13 @@ KEPT_POINTS = 16
 """Points whose Jacobian columns the engine keeps (:meth:`Engine.evaluate`)."""
 
 
+SOLVE_COLUMNS = 16
+
+"""A refit's solve has a multiple of this many columns (held ones pad the fitted): compiled
+once per process (it calls its Jacobian back, which the disk cache cannot keep), not once per
+number of fitted parameters."""
+
+
 LM_STEPS = 30
 
 """Levenberg–Marquardt steps per refit (each one Jacobian)."""
@@ -388,8 +395,8 @@ class Engine:
         The coordinates are the physical values over their starting magnitudes: in log
         coordinates a parameter pushed against a lower bound near zero (a friction term that
         compensated a missing effect) has a vanishing gradient and cannot come back. The
-        fitted columns are padded with held ones to a multiple of ``BLOCK``, so that one
-        compiled solve serves every fitted set of that size.
+        fitted columns are padded with held ones (their Jacobian columns zero, not computed) to
+        a multiple of :data:`SOLVE_COLUMNS`, so that one compiled solve serves every fit.
         """
         u = self.universe
         mask = u.active_mask(active)
@@ -400,7 +407,8 @@ class Engine:
         lower, upper = u.space.lower[cols], u.space.upper[cols]
         scale = np.maximum(np.abs(x[cols]), lower)
         scale = np.where(scale > 0, scale, upper - lower)
-        held = np.flatnonzero(~mask)[: min(-(-len(cols) // BLOCK) * BLOCK, len(x)) - len(cols)]
+        size = min(-(-len(cols) // SOLVE_COLUMNS) * SOLVE_COLUMNS, len(x))
+        held = np.flatnonzero(~mask)[: size - len(cols)]
         index = np.concatenate([cols, held])
         scales = np.concatenate([scale, np.ones(len(held))])
         p0 = x[index] / scales
@@ -408,8 +416,8 @@ class Engine:
         def system(p: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
             xt = x.copy()
             xt[index] = p * scales
-            pred, jac = self.evaluate(xt, np.zeros_like(mask), index)
-            return self._system(pred, jac * scales)
+            pred, jac = self.evaluate(xt, np.zeros_like(mask), cols)
+            return self._system(pred, np.pad(jac * scale, ((0, 0), (0, len(held)))))
 
         fit = bounded_least_squares_of(
             system, 2 * self.n_samples, p0,
