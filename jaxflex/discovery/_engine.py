@@ -7,7 +7,6 @@ from __future__ import annotations
 
 import dataclasses
 import math
-import threading
 from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass
 
@@ -128,7 +127,6 @@ class Engine:
     weights: dict[str, float] = dataclasses.field(default_factory=dict)  # user channel weights
     record_start: tuple[str, int] = ("rest", DEFAULT_MODES)  # initial-state option, modes
     _columns: dict = dataclasses.field(default_factory=dict, repr=False)  # Jacobians kept
-    _kept: threading.Lock = dataclasses.field(default_factory=threading.Lock, repr=False)
 
     @classmethod
     def build(cls, model: Model, candidates: Sequence[Candidate], records: Dataset,
@@ -228,11 +226,10 @@ class Engine:
         The columns are computed in ``x`` (a log coordinate's is ``x`` times it) and kept for
         the last :data:`KEPT_POINTS` points, so that the score tests, the profiles and a
         refit's first step at one point share them; the missing ones in blocks of
-        :data:`BLOCK`. Profiles on other threads share the columns kept."""
+        :data:`BLOCK`."""
         x = np.asarray(x, dtype=float)
         key = x.tobytes()
-        with self._kept:
-            pred, known = self._columns.get(key, (None, {}))
+        pred, known = self._columns.get(key, (None, {}))
         missing = [c for c in dict.fromkeys(int(c) for c in cols) if c not in known]
         if pred is None or missing:
             for start in range(0, max(len(missing), 1), BLOCK):
@@ -242,11 +239,10 @@ class Engine:
                 y, jt = jacobian_block(self.problem, jnp.asarray(x), jnp.asarray(tangents))
                 pred = np.asarray(y)
                 known = known | dict(zip(chunk, np.asarray(jt), strict=False))
-        with self._kept:
-            self._columns.pop(key, None)
-            self._columns[key] = (pred, known)  # the most recent last
-            while len(self._columns) > KEPT_POINTS:
-                del self._columns[next(iter(self._columns))]
+        self._columns.pop(key, None)
+        self._columns[key] = (pred, known)  # the most recent last
+        while len(self._columns) > KEPT_POINTS:
+            del self._columns[next(iter(self._columns))]
         scale = np.where(logflag, x, 1.0)
         return pred, (np.stack([known[int(c)] * scale[c] for c in cols], axis=1)
                       if len(cols) else np.zeros((pred.size, 0)))
@@ -636,6 +632,7 @@ class _Profile:
         return np.where(np.isfinite(costs), costs, np.inf)
 
     def add(self, ts: np.ndarray, costs: np.ndarray) -> None:
+        """Points tried and their costs, kept in the order of ``t``."""
         order = np.argsort(np.concatenate([self.ts, ts]), kind="stable")
         self.ts = np.concatenate([self.ts, ts])[order]
         self.costs = np.concatenate([self.costs, costs])[order]
