@@ -553,9 +553,7 @@ class Engine:
         _, r = self.whitened(pred)
         jn = jac[:, : len(nuisance)]
         columns = dict(zip(tested, jac[:, len(nuisance):].T, strict=True))
-        norms = np.linalg.norm(jn, axis=0)
-        q, rr = np.linalg.qr(jn / np.where(norms > 0, norms, 1.0))
-        q = q[:, np.abs(np.diag(rr)) > 1e-10]
+        q = _span(jn)
 
         families: dict[int, list[ScoreResult]] = {}
         for s in slots:
@@ -575,6 +573,14 @@ class Engine:
             results.append(dataclasses.replace(best, p_value=p, significant=p < alpha / m))
         results.sort(key=lambda t: (t.p_value, -(t.statistic - t.dof)))
         return results
+
+
+def _span(jac: np.ndarray) -> np.ndarray:
+    """Orthonormal columns spanning ``jac``'s columns (scaled to unit norm first; columns that
+    add no direction dropped)."""
+    norms = np.linalg.norm(jac, axis=0)
+    q, rr = np.linalg.qr(jac / np.where(norms > 0, norms, 1.0))
+    return q[:, np.abs(np.diag(rr)) > 1e-10]
 
 
 @dataclass
@@ -601,10 +607,7 @@ class _Profile:
         if key not in bases:
             pred, jac = engine.evaluate(x, np.zeros(len(x), bool),
                                         np.flatnonzero(u.active_mask(active)))
-            _, jf = engine._system(pred, jac)
-            norms = np.linalg.norm(jf, axis=0)
-            q, rr = np.linalg.qr(jf / np.where(norms > 0, norms, 1.0))
-            bases[key] = q[:, np.abs(np.diag(rr)) > 1e-10]
+            bases[key] = _span(engine._system(pred, jac)[1])
         space = ParameterSpace([u.space[n] for n in u.slots[slot].tested])
         est = np.array([guess.get(o, np.nan) for o in u.slots[slot].tested_own])
         inside = np.all(np.isfinite(est)) and np.all(est > space.lower) and np.all(
