@@ -17,8 +17,9 @@ Parameters can be evaluated from physical values or from the unit box ``u`` that
 the refinement work in (:mod:`jaxflex.parameters`). Only the free parameters are searched;
 ``fixed`` ones keep their given values.
 
-Records of equal length are stacked and simulated by one ``vmap``; groups of different length
-are simulated one after another inside the same traced function.
+Records of equal length are stacked and simulated by one ``vmap`` (:func:`per_record`; a
+group of one record without it); groups of different length are simulated one after another
+inside the same traced function.
 
 Records start at rest, or, for records logged in motion, from an initial state that is a
 function of the parameters (estimated from each record's own residuals, or its periodic steady
@@ -28,7 +29,8 @@ state: :mod:`jaxflex.initial`), so the cost stays a function of the parameters a
 from __future__ import annotations
 
 import math
-from collections.abc import Iterable, Mapping, Sequence
+from collections.abc import Callable, Iterable, Mapping, Sequence
+from typing import TypeVar
 
 import equinox as eqx
 import jax
@@ -57,6 +59,18 @@ from jaxflex.simulation import OUTPUT_NAMES, read_channels, simulate_core
 
 Records = Dataset | Record | Iterable[Record]
 """What functions that take measurements accept: a data set, one record or records."""
+
+_T = TypeVar("_T")
+
+
+def per_record(fn: Callable[..., _T], *group: Array) -> _T:
+    """``jax.vmap(fn)(*group)``: ``fn`` on each row of a group of records (arrays with a row per
+    record). A group of one record runs ``fn`` on its row unbatched, the row axis put back:
+    batching the time loop (every loop and custom derivative inside it batched anew) costs
+    more tracing than the loop itself, about half a second per compiled program."""
+    if all(a.shape[0] == 1 for a in group):
+        return jax.tree.map(lambda y: y[None], fn(*(a[0] for a in group)))
+    return jax.vmap(fn)(*group)
 
 
 def as_dataset(records: Records) -> Dataset:
@@ -143,7 +157,7 @@ class Objective(eqx.Module):
         def one(torque):
             return self._read(full, simulate_core(self.model, full, torque, self.dt))
 
-        return tuple(jax.vmap(one)(torque) for torque in self.torque)
+        return tuple(per_record(one, torque) for torque in self.torque)
 
     def simulate_from(self, params: Mapping[str, ArrayLike],
                       states: Sequence[Float[Array, "R c"]]) -> tuple[Float[Array, "R C n"], ...]:
@@ -155,7 +169,7 @@ class Objective(eqx.Module):
             return self._read(full, simulate_from(self.model, full, torque, self.dt, z,
                                                   self.initial_modes))
 
-        return tuple(jax.vmap(one)(torque, z)
+        return tuple(per_record(one, torque, z)
                      for torque, z in zip(self.torque, states, strict=True))
 
     def initial_states(self, params: Mapping[str, ArrayLike]) -> tuple[Float[Array, "R c"], ...]:
@@ -179,7 +193,7 @@ class Objective(eqx.Module):
             return periodic_state(self.model, full, torque, self.dt, modes, period, residual)
 
         return tuple(
-            jax.vmap(lambda t, y, s, period=period: one(t, y, s, period))(torque, y, s)
+            per_record(lambda t, y, s, period=period: one(t, y, s, period), torque, y, s)
             for torque, y, s, period in zip(self.torque, self.measured, self.scale, periods,
                                             strict=True)
         )

@@ -19,14 +19,13 @@ from __future__ import annotations
 from collections.abc import Mapping, Sequence
 
 import equinox as eqx
-import jax
 import jax.numpy as jnp
 from jaxtyping import Array, ArrayLike, Float, Scalar
 
 from jaxflex.data import Record
 from jaxflex.kalman import check_per_sample, filter_core, fit_noise, measurement_noise
 from jaxflex.noise import Noise
-from jaxflex.objective import Objective
+from jaxflex.objective import Objective, per_record
 
 CRITERIA: tuple[str, ...] = ("output", "prediction")
 """Identification criteria: output error (free simulation) or prediction error (innovations)."""
@@ -46,7 +45,7 @@ class PredictionObjective(Objective):
             return filter_core(self.model, full, torque, measured, (scale > 0).astype(float),
                                self.dt, self.channels, self.sigma_y, self.disturbance).predicted
 
-        return tuple(jax.vmap(one)(t, y, s)
+        return tuple(per_record(one, t, y, s)
                      for t, y, s in zip(self.torque, self.measured, self.scale, strict=True))
 
 
