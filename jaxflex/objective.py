@@ -533,4 +533,4 @@ def build_objective(
 
 __all__ = ["Objective", "as_dataset", "build_objective", "check_channels",
            "check_inputs", "check_records", "check_weights", "fitted_channels", "free_specs",
-           "held_fixed", "noise_weights", "record_tuple"]
+           "held_fixed", "noise_weights", "per_record", "record_tuple"]

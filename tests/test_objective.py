@@ -124,6 +124,20 @@ def test_records_of_different_length_each_count_once(clean):
     assert float(cost_jit(both, OTHER)) == pytest.approx(np.mean(single), rel=1e-9)
 
 
+def test_a_record_alone_is_simulated_as_in_a_batch_beside_another(clean):
+    """A group of one record runs unbatched (``per_record``), a group of several as one vmap:
+    the record's channels agree to round-off (stick phases amplify it, as above)."""
+    alone = build_objective([clean["pulse"]])
+    beside = build_objective([clean["pulse"], clean["triangular"]])
+    assert alone.groups == ((0,),) and beside.groups == ((0, 1),)
+    simulated = eqx.filter_jit(lambda objective, params: objective.simulate(params))
+    [one], [two] = simulated(alone, OTHER), simulated(beside, OTHER)
+    assert one.shape == (1, *two.shape[1:])
+    scale = np.max(np.abs(np.asarray(two[0])), axis=-1, keepdims=True)
+    assert np.all(np.abs(np.asarray(one[0]) - np.asarray(two[0])) <= 1e-9 * scale)
+    assert np.max(np.abs(np.asarray(one[0]) - np.asarray(two[1]))) > 1e-3 * np.max(scale)
+
+
 def test_fixed_parameters_and_bounds(clean):
     objective = build_objective(
         clean, fixed={"beta": TRUTH["beta"]}, bounds={"J_h": (1e-3, 1e-2)}
