@@ -36,7 +36,7 @@ import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
-from jaxtyping import Array, ArrayLike, Float, Scalar
+from jaxtyping import Array, ArrayLike, Float, Scalar, Shaped
 
 from jaxflex._arguments import shown
 from jaxflex.data import OUTPUT_COLUMNS, Dataset, Record
@@ -63,7 +63,7 @@ Records = Dataset | Record | Iterable[Record]
 _T = TypeVar("_T")
 
 
-def per_record(fn: Callable[..., _T], *group: Array) -> _T:
+def per_record(fn: Callable[..., _T], *group: Shaped[Array, "R ..."]) -> _T:
     """``jax.vmap(fn)(*group)``: ``fn`` on each row of a group of records (arrays with a row per
     record). A group of one record runs ``fn`` on its row unbatched, the row axis put back:
     batching the time loop (every loop and custom derivative inside it batched anew) costs
