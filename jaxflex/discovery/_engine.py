@@ -440,17 +440,13 @@ class Engine:
         """
         bases: dict[tuple, np.ndarray] = {}
         profiles = [_Profile.of(self, request, bases) for request in requests]
-        if not profiles:
-            return []
-        grids = [p.grid() for p in profiles]
-        for profile, grid, costs in zip(profiles, grids, self._profiled(profiles, grids),
-                                        strict=True):
-            profile.add(grid, costs)
-        while pending := [p for p in profiles if p.width > PROFILE_WIDTH]:
-            finer = [p.finer(PROFILE_REFINED) for p in pending]
-            for profile, grid, costs in zip(pending, finer, self._profiled(pending, finer),
+        pending, grids = profiles, [p.grid() for p in profiles]
+        while pending:
+            for profile, grid, costs in zip(pending, grids, self._profiled(pending, grids),
                                             strict=True):
                 profile.add(grid, costs)
+            pending = [p for p in profiles if p.width > PROFILE_WIDTH]
+            grids = [p.finer(PROFILE_REFINED) for p in pending]
         return [p.best() for p in profiles]
 
     def _profiled(self, profiles: Sequence[_Profile], grids: Sequence[np.ndarray]
