@@ -31,6 +31,7 @@ from jaxflex.signals import reference_input  # noqa: E402
 from jaxflex.testbed import Testbed  # noqa: E402
 
 simulator = importlib.import_module("jaxflex.simulation")
+solver = importlib.import_module("jaxflex.friction_solve")
 RESULTS = Path(__file__).parent / "results" / "profile_simulate.json"
 
 
@@ -89,25 +90,25 @@ def friction_iterations(model: Model, torque, population: int = 10) -> dict[str,
     vmapped steps in which that loop ran for some candidate, and the law's evaluations per
     candidate, recorded by a host callback in each solve."""
     counts = []
-    solve = simulator._bracketed_newton
+    solve = solver.bracketed_newton
 
-    def counted(residual, lo, hi, guess):
-        root, count, extra = solve(residual, lo, hi, guess)
+    def counted(residual, lo, hi, guess, **options):
+        root, count, extra = solve(residual, lo, hi, guess, **options)
         jax.debug.callback(lambda c: counts.append(int(c)), count)
         return root, count, extra
 
-    simulator._bracketed_newton = counted
+    solver.bracketed_newton = counted
     try:
         run, params = compiled_batch(model, population, torque)
         run(params).joint_angle.block_until_ready()
         jax.effects_barrier()
     finally:
-        simulator._bracketed_newton = solve
+        solver.bracketed_newton = solve
     per_step = np.asarray(counts).reshape(-1, population)  # the callback runs lane by lane
-    loop = per_step - (simulator.NEWTON_STEPS + 1)  # evaluations after the plain steps
+    loop = per_step - (solver.NEWTON_STEPS + 1)  # evaluations after the plain steps
     return {
         "population": population,
-        "plain_newton_steps": simulator.NEWTON_STEPS,
+        "plain_newton_steps": solver.NEWTON_STEPS,
         "share_of_candidate_steps_solved_by_the_loop": float((loop > 0).mean()),
         "share_of_vmapped_steps_running_the_loop": float((loop > 0).any(axis=1).mean()),
         "evaluations_per_candidate_step": float(per_step.mean()),
@@ -167,15 +168,15 @@ def main() -> None:
 
 
     per_steps = {}
-    default = simulator.NEWTON_STEPS
+    default = solver.NEWTON_STEPS
     try:  # 0: every lane's solve after its first evaluation is the safeguarded loop's
         for n in (0, 1, 2, 3):
-            simulator.NEWTON_STEPS = n
+            solver.NEWTON_STEPS = n
             per_steps[n] = best_time(model, 100, torque)
             print(f"{n} plain Newton steps before the loop, population 100: "
                   f"{per_steps[n] * 1e3:.1f} ms")
     finally:
-        simulator.NEWTON_STEPS = default
+        solver.NEWTON_STEPS = default
 
     write_json(
         args.out,

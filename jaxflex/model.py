@@ -247,7 +247,8 @@ class Model(eqx.Module):
     def load_amplitudes(self, params: Params, angle: Array, velocity: Array) -> Array:
         """Stacked amplitudes of all position-dependent loads, ``(k,)``."""
         parts = [e.load_amplitudes(params, angle, velocity) for e in self.effects]
-        return jnp.concatenate([jnp.zeros((0,))] + parts)
+        parts = [a for a in parts if np.shape(a)[0]]  # no empty arrays (a GPU kernel has none)
+        return jnp.concatenate(parts) if parts else jnp.zeros((0,))
 
     def input_torque(self, params: Params, torque: Array, h: float) -> Array:
         """The drive's torque from the logged input after every input effect (delay, lag).

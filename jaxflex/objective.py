@@ -38,6 +38,7 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, ArrayLike, Float, Scalar, Shaped
 
+from jaxflex import fused
 from jaxflex._arguments import shown
 from jaxflex.data import OUTPUT_COLUMNS, Dataset, Record
 from jaxflex.evolve._base import sanitize_fitness
@@ -226,9 +227,23 @@ class Objective(eqx.Module):
         return self.cost(self.from_unit(u))
 
     def fitness(self, population: Float[Array, "P d"]) -> Float[Array, " P"]:
-        """Cost of every unit-box candidate, one vmapped call split across the host's cores
-        (:mod:`jaxflex.parallel`); non-finite → ``+inf``."""
+        """Cost of every unit-box candidate in one call: vmapped and split across the host's
+        cores (:mod:`jaxflex.parallel`), or on a GPU each record's time loop one kernel for the
+        whole population where the model allows it and the records start at rest
+        (:mod:`jaxflex.fused`); non-finite → ``+inf``."""
+        if self.initial_state == "rest" and fused.preferred(self.model):
+            return sanitize_fitness(self._fused_costs(population))
         return sanitize_fitness(population_vmap(self.unit_cost, population))
+
+    def _fused_costs(self, population: Float[Array, "P d"]) -> Float[Array, " P"]:
+        full = jax.vmap(lambda u: self.full(self.from_unit(u)))(population)
+
+        def record(torque):  # (P, C, n)
+            outputs = fused.simulate_fused(self.model, full, torque, self.dt)
+            return jax.vmap(self._read)(full, outputs)
+
+        simulated = [jnp.stack([record(t) for t in group], axis=1) for group in self.torque]
+        return jax.vmap(lambda *group: jnp.sum(self._stacked(group) ** 2))(*simulated)
 
     # --- layout (NumPy, for noise estimates and reports) ------------------------------------
     def layout(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:

@@ -15,7 +15,8 @@ hold) and does three things:
    Newton step off the previous step's velocity with the friction and slope carried there,
    takes two plain Newton steps as straight-line code, and only where the round-off test then
    fails (breakaway, stops: a small share of the steps) solves again with a safeguarded loop;
-   it hands on the friction it evaluated at the root (no further evaluation of the law);
+   it hands on the friction it evaluated at the root (no further evaluation of the law;
+   :mod:`jaxflex.friction_solve`);
 3. applies the weak rank-one mass-damping coupling (folded into the step's coefficients) and
    position-dependent loads (gravity) explicitly from the start of the step.
 
@@ -43,21 +44,13 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, ArrayLike, Float, Scalar
 
+from jaxflex.friction_solve import friction_at_root, joint_velocity_solve, warm_start
 from jaxflex.modal import Modes, free_hub_modes
 from jaxflex.model import Model
 from jaxflex.parallel import population_vmap
 from jaxflex.parameters import Params
 from jaxflex.sensors import calibrated
 
-MAX_FRICTION_ITERATIONS = 100
-"""Upper bound on the friction solve's evaluations of the law (it stops at round-off, usually
-after :data:`NEWTON_STEPS` + 1)."""
-RESIDUAL_ULPS = 16.0
-"""The friction residual counts as converged within this many ulps of its terms."""
-NEWTON_STEPS = 2
-"""Plain Newton steps of the friction solve before its round-off test; a lane that fails the
-test (breakaway, stops) is solved again by the safeguarded loop. Straight-line steps cost
-far less than turns of a loop (``benchmarks/profile_simulate.py`` times 0 to 3 of them)."""
 SCAN_UNROLL = 1
 #: Weight of the end-of-step friction (θ-method): 0.5 is trapezoidal, 1 backward Euler.
 FRICTION_THETA = 0.55
@@ -162,127 +155,6 @@ def oscillator_step(omega: Array, damping: Array, h: float) -> _StepMaps:
     )
 
 
-def _bracketed_newton(residual, lo: Array, hi: Array, guess: Array):
-    """Root of the increasing scalar ``residual`` in ``[lo, hi]``, converged to round-off.
-
-    ``residual(v)`` returns ``(r, slope, scale, extra)``, ``scale`` being the size of the terms
-    that make up ``r`` (its round-off is a few ulps of it) and ``extra`` any values worth keeping
-    from the evaluation (the friction there).
-
-    First :data:`NEWTON_STEPS` plain Newton steps from ``guess``, straight-line code that XLA
-    fuses; a lane whose result lies in the bracket with its residual at round-off is done. The
-    others (breakaway, stops) restart from ``guess`` in a safeguarded
-    loop: Newton steps that leave the bracket fall back to bisection, so every iteration shrinks
-    it; it stops when the residual is at round-off, the Newton step is below an ulp of ``v``,
-    the bracket has collapsed or an iteration left ``v`` unchanged, and after
-    :data:`MAX_FRICTION_ITERATIONS` at the latest. Every lane ends on a point it evaluated.
-    Returns the root, the evaluations taken and ``extra`` at the root.
-    """
-    eps = jnp.finfo(jnp.result_type(guess)).eps
-
-    def at_round_off(r, scale):
-        return jnp.abs(r) <= RESIDUAL_ULPS * eps * scale
-
-    def step(carry):
-        v, _, lo, hi, converged, count, _ = carry
-        # one value of each quantity for every use below (XLA could otherwise recompute the
-        # residual in several fused kernels that round differently and never agree)
-        r, slope, scale, extra = jax.lax.optimization_barrier(residual(v))
-        lo = jnp.where(r < 0.0, v, lo)
-        hi = jnp.where(r > 0.0, v, hi)
-        newton = v - r / jnp.where(slope > 0.0, slope, 1.0)
-        ok = (slope > 0.0) & (newton > lo) & (newton < hi)
-        new = jnp.where(ok, newton, 0.5 * (lo + hi))
-        done = (
-            converged  # a converged lane stays put: batched loops run until every lane is done
-            | at_round_off(r, scale)
-            | (jnp.abs(new - v) <= eps * jnp.abs(v))
-            | (hi - lo <= eps * jnp.maximum(jnp.abs(lo), jnp.abs(hi)))
-            | (count + 1 >= MAX_FRICTION_ITERATIONS)  # the last one keeps the point it evaluated
-        )
-        return jnp.where(done, v, new), v, lo, hi, done, count + 1, extra
-
-    def running(carry):
-        v, previous, _, _, done, count, _ = carry
-        # an iteration that leaves v unchanged has nothing left to do, whatever the test said
-        return ~done & (v != previous) & (count < MAX_FRICTION_ITERATIONS)
-
-    v0 = jnp.clip(guess, lo, hi)
-    v = v0
-    for _ in range(NEWTON_STEPS):  # a slope <= 0 gives inf or NaN, which fails the test below
-        r, slope, _, _ = residual(v)
-        v = v - r / slope
-    r, _, scale, extra = jax.lax.optimization_barrier(residual(v))
-    fast = at_round_off(r, scale) & (v >= lo) & (v <= hi)
-    start = (
-        jnp.where(fast, v, v0),
-        jnp.full_like(v0, jnp.nan),
-        lo,
-        hi,
-        fast,
-        jnp.full_like(v0, NEWTON_STEPS + 1, dtype=int),
-        extra,  # where not fast, the loop's first turn replaces it (previous is NaN: it turns)
-    )
-    v, _, _, _, _, count, extra = jax.lax.while_loop(running, step, start)
-    return v, count, extra
-
-
-def _joint_velocity_solve(friction, target: Array, gain: Array, guess: Array):
-    """Solve ``v + gain·f(v) = target`` for the end-of-step joint velocity ``v``.
-
-    ``f`` is any friction law with ``f(0) = 0`` and ``sign f(v) = sign v``, so the root lies
-    between 0 and ``target``; a safeguarded Newton iteration converges it to round-off
-    (:func:`_bracketed_newton`), stick phases included. Gradients follow from the implicit-function
-    theorem (:func:`jax.lax.custom_root`), so reverse mode stores no iterations. Returns the root
-    and, from the solve's last evaluation, ``(f, f')`` there (without derivatives: see
-    :func:`_friction_at_root`).
-    """
-
-    def residual(v):
-        return v + gain * friction(v) - target
-
-    def solve(residual, guess):
-        def with_slope(v):
-            f, df = jax.jvp(friction, (v,), (jnp.ones_like(v),))
-            scale = jnp.abs(v) + jnp.abs(gain * f) + jnp.abs(target)
-            return v + gain * f - target, 1.0 + gain * df, scale, (f, df)
-
-        lo, hi = jnp.minimum(0.0, target), jnp.maximum(0.0, target)
-        root, _, friction_there = _bracketed_newton(with_slope, lo, hi, guess)
-        return root, friction_there
-
-    return jax.lax.custom_root(residual, guess, solve, lambda g, y: y / g(1.0), has_aux=True)
-
-
-def _friction_at_root(friction_and_slope, params: Params, v: Array, evaluated):
-    """``friction_and_slope(params, v)``, taken from ``evaluated`` (the solve's own evaluation
-    at ``v``) when nothing differentiates it: a plain run evaluates the law once less per
-    step. Differentiated (to any order), it is the law itself, values and derivatives."""
-
-    @jax.custom_jvp
-    def at_root(params, v, evaluated):
-        return evaluated
-
-    @at_root.defjvp
-    def at_root_jvp(primals, tangents):
-        params, v, _ = primals
-        d_params, d_v, _ = tangents
-        return jax.jvp(friction_and_slope, (params, v), (d_params, d_v))
-
-    return at_root(params, v, evaluated)
-
-
-def _warm_start(v: Array, f: Array, slope: Array, target: Array, gain: Array) -> Array:
-    """Start of the friction solve: one Newton step on ``v + gain·f(v) = target`` from the
-    previous step's velocity ``v``, with the friction ``f`` and slope there (no new evaluation).
-
-    Sliding, the friction law is nearly linear over a step and this lands within round-off of
-    the root; a slope that is not positive (a falling Stribeck branch) takes a plain step.
-    """
-    denominator = 1.0 + gain * slope
-    return v - (v + gain * f - target) / jnp.where(denominator > 0.0, denominator, 1.0)
-
-
 class _StaticResponse(eqx.Module):
     """Quasi-static response of the truncated modes (residual flexibility), per output row.
 
@@ -316,6 +188,7 @@ class _ModalSystem(eqx.Module):
     tip: Array  # (m,) w(L) per mode
     root_curvature: Array  # (m,) w''(0) per mode
     stations: tuple[Array, ...]  # w(x_k) per mode, w''(x_k) per mode: (k, m) each
+    station_radius: Array  # (k,) each station's distance from the axis (an input of a kernel)
     shapes: Array  # (n, m) mode shapes, to map back to physical coordinates
     initial: tuple[Array, Array]  # (θ_r, η) at rest under the loads
     static: _StaticResponse | None  # the truncated modes' share of each output; None: none
@@ -362,6 +235,7 @@ def _modal_system(model: Model, params: Params, h: float) -> _ModalSystem:
         tip=tip[:kept],
         root_curvature=root_curvature[:kept],
         stations=tuple(projected[:, :kept] for projected in stations),
+        station_radius=jnp.asarray([model.testbed.clamp_offset + x for x in model.stations]),
         shapes=modes.shapes[:, :kept],
         initial=initial,
         static=static,
@@ -477,25 +351,91 @@ def simulate_core(
     return with_readings(model, Outputs(*out))
 
 
-def model_dynamics(model: Model, params: Params, dt: float) -> Dynamics:
+def sum_matmul(a: Array, b: Array) -> Array:
+    """``a @ b`` for vectors and matrices, written as products and sums (a Triton kernel lowers
+    these in float64, not a matrix product)."""
+    if b.ndim == 1:
+        return jnp.sum(a * b, axis=-1)
+    return jnp.sum(a[..., :, None] * b, axis=-2)
+
+
+class StepCoefficients(eqx.Module):
+    """One parameter set's time-loop coefficients, formed once outside the loop: the modal
+    system and the step's per-candidate factors (what a fused kernel loads per lane)."""
+
+    system: _ModalSystem
+    gain: Scalar  # d θ'_{k+1} / d u over one step
+    inv_j: Scalar
+    h_inv_j: Scalar
+    half_h2_inv_j: Scalar
+    gx_p: Array
+    gv_p: Array
+    p2: Array
+    a12: Array  # the free step's coefficients with the rank-one mass damping folded in
+    a22: Array
+    bx: Array
+    bv: Array
+
+
+def step_coefficients(model: Model, params: Params, dt: float) -> StepCoefficients:
+    """The coefficients of :func:`model_dynamics`' time loop for ``params``."""
+    h = dt / model.n_substeps
+    system = _modal_system(model, params, h)
+    maps, p = system.maps, system.hub
+    # per-candidate factors formed once, outside the time loop: left inside, the compiler
+    # re-associates ``h·u/J`` differently in a one-device and a multi-device program
+    inv_j = 1.0 / system.inertia
+    h_inv_j = h * inv_j
+    gx_p, gv_p = maps.gx * p, maps.gv * p
+    p2 = p**2
+    # the free step with the mass-damping coupling ``αJ·(p²η' − p·pᵀη')`` folded into its
+    # coefficients, formed once rather than applied as a force each step (fewer operations in
+    # the time loop): η_free = p11·η + a12·η' + bx·pᵀη' (+ gx·loads), likewise η'
+    coupled = system.coupling * p2
+    return StepCoefficients(
+        system=system,
+        gain=h_inv_j + jnp.sum(p2 * maps.gv),
+        inv_j=inv_j,
+        h_inv_j=h_inv_j,
+        half_h2_inv_j=0.5 * h * h_inv_j,
+        gx_p=gx_p,
+        gv_p=gv_p,
+        p2=p2,
+        a12=maps.p12 + coupled * maps.gx,
+        a22=maps.p22 + coupled * maps.gv,
+        bx=-system.coupling * gx_p,
+        bv=-system.coupling * gv_p,
+    )
+
+
+def model_dynamics(
+    model: Model,
+    params: Params,
+    dt: float,
+    coefficients: StepCoefficients | None = None,
+    *,
+    fused: bool = False,
+) -> Dynamics:
     """The sampled dynamics of ``model`` with ``params`` at sample interval ``dt``: what
-    :func:`simulate_core` scans, and what a state estimator steps and linearises."""
+    :func:`simulate_core` scans, and what a state estimator steps and linearises.
+
+    ``coefficients`` (default: :func:`step_coefficients`) may come precomputed. ``fused``
+    writes the step for the lanes of a GPU kernel (:mod:`jaxflex.fused`): its products as sums
+    (Triton has no float64 matrix units), the friction solve's loop shared by the lanes."""
     n_sub = model.n_substeps
     h = dt / n_sub
-    system = _modal_system(model, params, h)
+    c = step_coefficients(model, params, dt) if coefficients is None else coefficients
+    matmul = sum_matmul if fused else jnp.matmul
+    system = c.system
     maps = system.maps
-    p, J = system.hub, system.inertia
+    p = system.hub
     length = model.testbed.clamp_offset + model.testbed.length  # tip radius from the axis
     thickness = model.testbed.thickness
     w = FRICTION_THETA
-    # per-candidate factors formed once, outside the time loop: left inside, the compiler
-    # re-associates ``h·u/J`` differently in a one-device and a multi-device program
-    inv_j = 1.0 / J
-    h_inv_j = h * inv_j
-    half_h2_inv_j = 0.5 * h * h_inv_j
-    gain = h_inv_j + jnp.sum(p**2 * maps.gv)  # d θ'_{k+1} / d u over one step
-    gx_p, gv_p = maps.gx * p, maps.gv * p
-    p2 = p**2
+    inv_j, h_inv_j, half_h2_inv_j, gain = c.inv_j, c.h_inv_j, c.half_h2_inv_j, c.gain
+    gx_p, gv_p, p2 = c.gx_p, c.gv_p, c.p2
+    a12, a22, bx, bv = c.a12, c.a22, c.bx, c.bv
+    has_loads = system.load_modal.shape[0] > 0
 
     def friction(v):
         return model.friction(params, v)
@@ -505,9 +445,11 @@ def model_dynamics(model: Model, params: Params, dt: float) -> Dynamics:
 
     def load_forces(theta, vel):
         """Rigid acceleration and modal force of the position-dependent loads, and their
-        amplitudes."""
+        amplitudes (None without loads: a kernel holds no empty arrays)."""
+        if not has_loads:  # (0·J⁻¹ as the empty sum gave: the same rounding downstream)
+            return 0.0 * inv_j, jnp.zeros_like(p), None
         amp = model.load_amplitudes(params, theta, vel)
-        return (amp @ system.load_hub) * inv_j, amp @ system.load_modal, amp
+        return matmul(amp, system.load_hub) * inv_j, matmul(amp, system.load_modal), amp
 
     def explicit_forces(theta, vel, vel_r, deta):
         """Rigid acceleration, modal force (loads and the off-diagonal mass damping) and the
@@ -517,14 +459,6 @@ def model_dynamics(model: Model, params: Params, dt: float) -> Dynamics:
         modal = loads - system.coupling * (p * flex_velocity - p2 * deta)
         return rigid, modal, (-system.coupling * flex_velocity, amp)
 
-    # the free step with the mass-damping coupling ``αJ·(p²η' − p·pᵀη')`` folded into its
-    # coefficients, formed once rather than applied as a force each step (fewer operations in
-    # the time loop): η_free = p11·η + a12·η' + bx·pᵀη' (+ gx·loads), likewise η'
-    coupled = system.coupling * p2
-    a12, a22 = maps.p12 + coupled * maps.gx, maps.p22 + coupled * maps.gv
-    bx, bv = -system.coupling * gx_p, -system.coupling * gv_p
-    has_loads = system.load_modal.shape[0] > 0
-
     def substep(state, tau):
         theta_r, vel_r, eta, deta, vel, f_vel, df_vel = state
         flex_velocity = vel - vel_r  # pᵀη'
@@ -532,15 +466,15 @@ def model_dynamics(model: Model, params: Params, dt: float) -> Dynamics:
         deta_free = maps.p21 * eta + a22 * deta + bv * flex_velocity
         theta_r_free, vel_r_free = theta_r + h * vel_r, vel_r
         if has_loads:
-            rigid, loads, _ = load_forces(theta_r + p @ eta, vel)
+            rigid, loads, _ = load_forces(theta_r + matmul(p, eta), vel)
             eta_free, deta_free = eta_free + maps.gx * loads, deta_free + maps.gv * loads
             vel_r_free = vel_r + h * rigid
             theta_r_free = theta_r_free + 0.5 * h**2 * rigid
-        target = vel_r_free + p @ deta_free + gain * (tau - (1.0 - w) * f_vel)
-        v_end, evaluated = _joint_velocity_solve(
-            friction, target, w * gain, _warm_start(vel, f_vel, df_vel, target, w * gain)
+        target = vel_r_free + matmul(p, deta_free) + gain * (tau - (1.0 - w) * f_vel)
+        v_end, evaluated = joint_velocity_solve(
+            friction, target, w * gain, warm_start(vel, f_vel, df_vel, target, w * gain), fused
         )
-        f_end, df_end = _friction_at_root(law_and_slope, params, v_end, evaluated)
+        f_end, df_end = friction_at_root(law_and_slope, params, v_end, evaluated)
         u = tau - w * f_end - (1.0 - w) * f_vel
         return (
             theta_r_free + half_h2_inv_j * u,
@@ -555,18 +489,18 @@ def model_dynamics(model: Model, params: Params, dt: float) -> Dynamics:
     def static_forcing(u, rest):
         """``[u − αJ·pᵀη', load amplitudes]``: what drives the truncated modes."""
         coupling, amp = rest
-        return jnp.concatenate([(u + coupling)[None], amp])
+        return jnp.concatenate([(u + coupling)[None]] + ([] if amp is None else [amp]))
 
     def read(rows, static_rows, modal, forcing):
         """Output rows applied to the modal state, plus the truncated modes' static share."""
         if static_rows is None:
-            return rows @ modal
-        return rows @ modal + static_rows @ forcing
+            return matmul(rows, modal)
+        return matmul(rows, modal) + matmul(static_rows, forcing)
 
     def outputs(state, tau):
         theta_r, vel_r, eta, deta, vel, f_vel, _ = state
         u = tau - f_vel
-        rigid, modal, rest = explicit_forces(theta_r + p @ eta, vel, vel_r, deta)
+        rigid, modal, rest = explicit_forces(theta_r + matmul(p, eta), vel, vel_r, deta)
         static = system.static
         forcing = None if static is None else static_forcing(u, rest)
 
@@ -575,10 +509,10 @@ def model_dynamics(model: Model, params: Params, dt: float) -> Dynamics:
 
         theta = theta_r + read(p, share("angle"), eta, forcing)
         ddeta = p * u + modal - system.damping * deta - system.omega2 * eta
-        acc = rigid + u * inv_j + p @ ddeta
+        acc = rigid + u * inv_j + matmul(p, ddeta)
         signals = (
             theta,
-            length * acc + system.tip @ ddeta,
+            length * acc + matmul(system.tip, ddeta),
             vel,
             read(system.tip, share("tip"), eta, forcing),
             0.5 * thickness * read(system.root_curvature, share("root_curvature"), eta, forcing),
@@ -590,15 +524,17 @@ def model_dynamics(model: Model, params: Params, dt: float) -> Dynamics:
         static_rows = (None, None) if static is None else static.stations
 
         def at(rows, static_rows, modal, forcing=None):
-            """Row by row, so a station at the tip or clamp rounds as they do."""
+            """Row by row, so a station at the tip or clamp rounds as they do (a kernel's sums
+            round every row as a vector anyway, and it has no slices)."""
+            if fused:
+                return read(rows, static_rows, modal, forcing)
             if static_rows is None:
                 return jnp.stack([read(row, None, modal, forcing) for row in rows])
             return jnp.stack(
                 [read(row, s, modal, forcing) for row, s in zip(rows, static_rows, strict=True)]
             )
 
-        radius = jnp.asarray([model.testbed.clamp_offset + x for x in model.stations])
-        acceleration = radius * acc + at(deflection, None, ddeta)
+        acceleration = system.station_radius * acc + at(deflection, None, ddeta)
         return signals + (
             at(deflection, static_rows[0], eta, forcing),
             at(curvature, static_rows[1], eta, forcing),
@@ -612,11 +548,11 @@ def model_dynamics(model: Model, params: Params, dt: float) -> Dynamics:
     def physical(state, tau):
         theta_r, vel_r, eta, deta, vel, f_vel, _ = state
         e_theta = jnp.zeros(system.shapes.shape[0]).at[0].set(1.0)
-        q = e_theta * theta_r + system.shapes @ eta
+        q = e_theta * theta_r + matmul(system.shapes, eta)
         if system.static is not None:
-            _, _, rest = explicit_forces(theta_r + p @ eta, vel, vel_r, deta)
-            q = q + system.static.shapes @ static_forcing(tau - f_vel, rest)
-        return q, e_theta * vel_r + system.shapes @ deta
+            _, _, rest = explicit_forces(theta_r + matmul(p, eta), vel, vel_r, deta)
+            q = q + matmul(system.static.shapes, static_forcing(tau - f_vel, rest))
+        return q, e_theta * vel_r + matmul(system.shapes, deta)
 
     def advance(state, taus):
         for j in range(n_sub):
@@ -626,7 +562,7 @@ def model_dynamics(model: Model, params: Params, dt: float) -> Dynamics:
     def from_vector(x):
         m = p.shape[0]
         theta_r, vel_r, eta, deta = x[0], x[1], x[2 : 2 + m], x[2 + m :]
-        vel = vel_r + p @ deta
+        vel = vel_r + matmul(p, deta)
         return (theta_r, vel_r, eta, deta, vel, *law_and_slope(params, vel))
 
     def to_vector(state):
@@ -646,8 +582,8 @@ def model_dynamics(model: Model, params: Params, dt: float) -> Dynamics:
             )
         eta = eta0.at[:k].add(initial.modal)
         deta = jnp.zeros_like(eta0).at[:k].set(initial.modal_velocity)
-        theta_r = theta_r0 + initial.angle - p[:k] @ initial.modal
-        vel_r = initial.velocity - p[:k] @ initial.modal_velocity
+        theta_r = theta_r0 + initial.angle - matmul(p[:k], initial.modal)
+        vel_r = initial.velocity - matmul(p[:k], initial.modal_velocity)
         return from_vector(jnp.concatenate([theta_r[None], vel_r[None], eta, deta]))
 
     return Dynamics(system, start, advance, outputs, physical, fine_torque, to_vector,
@@ -707,6 +643,10 @@ def _simulate_jit(model: Model, params: Params, torque: Array, dt: float) -> Out
 
 @eqx.filter_jit
 def _simulate_batch_jit(model: Model, params: Params, torque: Array, dt: float) -> Outputs:
+    from jaxflex import fused  # the kernel is built on this module
+
+    if fused.preferred(model):
+        return fused.simulate_fused(model, params, torque, dt)
     return population_vmap(lambda p, t: simulate_core(model, p, t, dt), params, torque)
 
 
@@ -771,7 +711,8 @@ def simulate_batch(
     """Simulate a population at once: each parameter is a 1-D array of ``P`` candidates.
 
     The whole population is one vmapped, JIT-compiled call, split across the host's cores
-    (:mod:`jaxflex.parallel`); outputs have shape ``(P, n)``.
+    (:mod:`jaxflex.parallel`), or on a GPU one kernel for the whole time loop where the model
+    allows it (:mod:`jaxflex.fused`); outputs have shape ``(P, n)``.
     """
     values, torque, dt = _check_inputs(model, params, torque, dt, batched=True)
     outputs = _simulate_batch_jit(model, values, _padded(torque), dt)

@@ -273,10 +273,10 @@ def test_friction_solve_converges_to_round_off(target, guess_share):
     """Stuck (|v| ≪ ω_s) to sliding: the root equals SciPy's brentq at full precision, from any
     start in the bracket, alone and vmapped, with the implicit-function derivative."""
     gain = 0.05
-    simulator = sys.modules["jaxflex.simulation"]
+    solver = sys.modules["jaxflex.friction_solve"]
 
     def solve(target, guess):
-        return simulator._joint_velocity_solve(_base_friction, target, gain, guess)[0]
+        return solver.joint_velocity_solve(_base_friction, target, gain, guess)[0]
 
     root = float(solve(jnp.float64(target), jnp.float64(guess_share * target)))
     expected = brentq(
@@ -294,13 +294,13 @@ def test_friction_solve_converges_to_round_off(target, guess_share):
 
 def test_friction_solve_stops_well_before_its_limit():
     """Few iterations from a start near the root; never the safety limit from a poor one."""
-    simulator = sys.modules["jaxflex.simulation"]
+    solver = sys.modules["jaxflex.friction_solve"]
     for target in (1e-9, 3e-4, 0.02, 0.5, 5.0):
         residual = _friction_residual(target)
         for guess in (0.0, target):
-            _, count, _ = simulator._bracketed_newton(residual, 0.0, target, guess)
-            assert int(count) < simulator.MAX_FRICTION_ITERATIONS // 2, (target, guess, count)
-        _, count, _ = simulator._bracketed_newton(residual, 0.0, target, 0.999 * target)
+            _, count, _ = solver.bracketed_newton(residual, 0.0, target, guess)
+            assert int(count) < solver.MAX_FRICTION_ITERATIONS // 2, (target, guess, count)
+        _, count, _ = solver.bracketed_newton(residual, 0.0, target, 0.999 * target)
         assert int(count) <= 12, (target, count)
 
 
@@ -309,12 +309,12 @@ def test_safeguarded_loop_solves_what_the_plain_newton_steps_leave(target, guess
     """A start on the far side of the smooth-Coulomb knee: the plain Newton steps overshoot, the
     round-off test fails and the bracketed loop takes over, ending on brentq's root with the
     law's friction and slope there."""
-    simulator = sys.modules["jaxflex.simulation"]
+    solver = sys.modules["jaxflex.friction_solve"]
     gain = 0.05
-    root, count, (f_root, slope_root) = simulator._bracketed_newton(
+    root, count, (f_root, slope_root) = solver.bracketed_newton(
         _friction_residual(target, gain), 0.0, target, jnp.float64(guess)
     )
-    assert simulator.NEWTON_STEPS + 1 < int(count) < simulator.MAX_FRICTION_ITERATIONS // 2
+    assert solver.NEWTON_STEPS + 1 < int(count) < solver.MAX_FRICTION_ITERATIONS // 2
     expected = brentq(
         lambda v: v + gain * float(_base_friction(v)) - target,
         0.0, target, xtol=1e-300, rtol=4 * np.finfo(float).eps,
@@ -351,15 +351,15 @@ def test_warm_start_lands_on_the_root_while_sliding():
     """From the previous step's velocity, friction and slope, one Newton step (no evaluation)
     starts the solve within round-off of the root while sliding, so the plain Newton steps end
     converged; near zero velocity it still converges to brentq's root."""
-    simulator = sys.modules["jaxflex.simulation"]
+    solver = sys.modules["jaxflex.friction_solve"]
     gain = 0.05
     for previous, change in ((0.5, 1e-4), (-2.0, -3e-3), (0.3, -1e-3), (2e-3, -3e-3)):
         target = previous + gain * float(_base_friction(previous)) + change
         f, slope = jax.jvp(_base_friction, (jnp.float64(previous),), (1.0,))
-        guess = simulator._warm_start(jnp.float64(previous), f, slope, target, gain)
+        guess = solver.warm_start(jnp.float64(previous), f, slope, target, gain)
         residual = _friction_residual(target, gain)
         lo, hi = min(0.0, target), max(0.0, target)
-        root, count, (f_root, slope_root) = simulator._bracketed_newton(residual, lo, hi, guess)
+        root, count, (f_root, slope_root) = solver.bracketed_newton(residual, lo, hi, guess)
         expected = brentq(
             lambda v, target=target: v + gain * float(_base_friction(v)) - target,
             lo, hi, xtol=1e-300, rtol=4 * np.finfo(float).eps,
@@ -372,9 +372,9 @@ def test_warm_start_lands_on_the_root_while_sliding():
         if abs(previous) >= 30 * 0.01:  # far from the smooth-Coulomb knee (ω_s = 0.01)
             r, _, scale, _ = residual(guess)
             eps = np.finfo(float).eps
-            assert abs(float(r)) <= simulator.RESIDUAL_ULPS * eps * float(scale), (previous, r)
+            assert abs(float(r)) <= solver.RESIDUAL_ULPS * eps * float(scale), (previous, r)
             # so the plain Newton steps end converged and the safeguarded loop never runs
-            assert int(count) == simulator.NEWTON_STEPS + 1, (previous, change, count)
+            assert int(count) == solver.NEWTON_STEPS + 1, (previous, change, count)
 
 
 def test_length_buckets_share_a_program_and_leave_the_samples_unchanged():

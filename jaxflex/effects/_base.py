@@ -25,6 +25,7 @@ from typing import ClassVar
 
 import equinox as eqx
 import jax.numpy as jnp
+import numpy as np
 from jaxtyping import Array, Float
 
 from jaxflex.parameters import ParameterSpec, Params
@@ -71,8 +72,9 @@ class AbstractEffect(eqx.Module):
         return jnp.zeros((0, structure.mass.shape[0]))
 
     def load_amplitudes(self, params: Params, angle: Array, velocity: Array) -> Float[Array, " k"]:
-        """Amplitudes ``a_i(θ, θ')`` multiplying the shapes of :meth:`loads`."""
-        return jnp.zeros((0,))
+        """Amplitudes ``a_i(θ, θ')`` multiplying the shapes of :meth:`loads`; none by default (a
+        NumPy array: nothing is computed, and a GPU kernel holds no empty arrays)."""
+        return np.zeros((0,))
 
     def input_torque(self, params: Params, torque: Float[Array, " m"], h: float) -> Array:
         """Torque reaching the joint from the applied torque on a grid of step ``h``."""

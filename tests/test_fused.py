@@ -1,0 +1,131 @@
+"""The fused GPU kernel (:mod:`jaxflex.fused`): the simulator's outputs to round-off, on a rig
+other than the reference strip, through Pallas' interpreter on the CPU; and a program Triton can
+compile (lowered for CUDA here, no GPU needed)."""
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from jaxflex import fused
+from jaxflex.data import Dataset
+from jaxflex.effects.gravity import Gravity
+from jaxflex.effects.payload import Payload
+from jaxflex.effects.stribeck import Stribeck
+from jaxflex.fused import simulate_fused, supports
+from jaxflex.model import Model
+from jaxflex.objective import build_objective
+from jaxflex.signals import reference_input
+from jaxflex.simulation import OUTPUT_NAMES, simulate_batch
+from jaxflex.synthetic import make_records
+from jaxflex.testbed import Testbed
+
+RIG = Model(
+    testbed=Testbed(length=0.35, thickness=0.0015, width=0.02, n_elements=3, clamp_offset=0.02,
+                    dt=0.002),
+    effects=(Gravity(), Stribeck(), Payload()),
+    stations=(0.1, 0.3),
+)
+
+
+@pytest.fixture(scope="module")
+def population():
+    _, torque = reference_input("pulse", duration=0.4, dt=RIG.testbed.dt)
+    unit = np.random.default_rng(3).uniform(size=(5, len(RIG.space)))
+    params = {k: jnp.asarray(v) for k, v in RIG.space.from_unit(unit).items()}
+    return params, jnp.asarray(torque)
+
+
+def test_the_kernel_gives_the_simulators_outputs_on_another_rig(population):
+    params, torque = population
+    # five candidates in blocks of four: the population is padded, and the padding dropped
+    fused = jax.jit(lambda p, t: simulate_fused(RIG, p, t, RIG.testbed.dt, block=4))(params,
+                                                                                    torque)
+    scan = simulate_batch(RIG, params, torque)
+    names = OUTPUT_NAMES + ("station_deflection", "station_curvature", "station_acceleration")
+    for name in names:
+        got, want = np.asarray(getattr(fused, name)), np.asarray(getattr(scan, name))
+        assert got.shape == want.shape, name
+        # six padded modes → eight lanes of modes; products summed in another order than XLA's
+        np.testing.assert_allclose(got, want, rtol=0, atol=1e-11 * np.max(np.abs(want)),
+                                   err_msg=name)
+    # the stick-slip record does reach the friction solve's loop: the joint stops and restarts
+    assert np.any(np.abs(np.asarray(scan.joint_velocity)) < 1e-6)
+
+
+def test_where_the_kernel_is_preferred_a_generation_costs_what_it_costs_in_the_scan(monkeypatch):
+    """The paths a GPU takes, forced here (through the interpreter): identification's fitness,
+    over records of two lengths (a group of two and a group of one), and simulate_batch."""
+    two = make_records(RIG, inputs=("pulse", "half_sine"), duration=0.16, seed=1)
+    one = make_records(RIG, inputs=("triangular",), duration=0.1, seed=2)
+    objective = build_objective(Dataset([*two, *one]), RIG)
+    assert [t.shape[0] for t in objective.torque] == [2, 1]
+    population = jnp.asarray(np.random.default_rng(4).uniform(size=(3, objective.dim)))
+    params = {k: v[:3] for k, v in RIG.space.from_unit(np.asarray(population)).items()}
+    torque = np.asarray(objective.torque[1][0])
+    scan_costs = jax.jit(lambda u: objective.fitness(u))(population)
+    scan_outputs = simulate_batch(RIG, params, torque)
+    monkeypatch.setattr(fused, "preferred", lambda model: True)
+    kernel_costs = jax.jit(lambda u: objective.fitness(u))(population)
+    kernel_outputs = simulate_batch(RIG, params, torque)
+    assert np.all(np.asarray(scan_costs) > 0)
+    np.testing.assert_allclose(kernel_costs, scan_costs, rtol=1e-10)
+    np.testing.assert_allclose(kernel_outputs.tip_acceleration, scan_outputs.tip_acceleration,
+                               rtol=0, atol=1e-11 * np.max(np.abs(scan_outputs.tip_acceleration)))
+
+
+def test_models_the_kernel_cannot_run_are_named():
+    assert supports(RIG)
+    assert not supports(Model(n_modes=2))
+    assert not supports(Model(stations=(0.1, 0.2, 0.3)))
+    with pytest.raises(ValueError, match="simulate_batch runs it"):
+        simulate_fused(Model(stations=(0.1, 0.2, 0.3)), {}, jnp.zeros(4), 1e-3)
+    with pytest.raises(ValueError, match="block must be a power of two, got 24"):
+        simulate_fused(RIG, {}, jnp.zeros(4), 1e-3, block=24)
+
+
+def _kernel_jaxprs(jaxpr):
+    """The kernel bodies of every pallas_call in a closed jaxpr."""
+    for eqn in jaxpr.eqns:
+        if eqn.primitive.name == "pallas_call":
+            yield eqn.params["jaxpr"]
+        for value in eqn.params.values():
+            inner = getattr(value, "jaxpr", None)
+            if inner is not None and hasattr(inner, "eqns"):
+                yield from _kernel_jaxprs(inner)
+
+
+def _all_eqns(jaxpr):
+    for eqn in jaxpr.eqns:
+        yield eqn
+        for value in eqn.params.values():
+            inner = getattr(value, "jaxpr", value)
+            if hasattr(inner, "eqns"):
+                yield from _all_eqns(inner)
+
+
+@pytest.mark.parametrize("model", [RIG, Model()], ids=["rig", "reference"])
+def test_the_kernel_is_one_triton_can_compile(model, population):
+    """What Triton refused on the GPU: a loop condition per lane, and empty arrays (the
+    reference model has no loads)."""
+    pytest.importorskip("jax._src.pallas.triton.pallas_call_registration")
+    params = {k: jnp.zeros(64) + v for k, v in model.space.reference().items()}
+    torque = population[1]
+
+    def program(p, t):
+        return simulate_fused(model, p, t, model.testbed.dt, interpret=False)
+
+    closed = jax.make_jaxpr(program)(params, torque)
+    [kernel] = list(_kernel_jaxprs(closed.jaxpr))
+    for eqn in _all_eqns(kernel):
+        for var in list(eqn.invars) + list(eqn.outvars):
+            shape = getattr(var.aval, "shape", ())
+            assert 0 not in shape, f"empty array in the kernel: {eqn.primitive} {shape}"
+        if eqn.primitive.name == "while":
+            assert eqn.params["cond_jaxpr"].out_avals[0].shape == ()
+    exported = jax.export.export(
+        jax.jit(program),
+        platforms=["cuda"],
+        disabled_checks=[jax.export.DisabledSafetyCheck.custom_call("__gpu$xla.gpu.triton")],
+    )(params, torque)
+    assert "__gpu$xla.gpu.triton" in exported.mlir_module()
