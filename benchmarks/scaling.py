@@ -14,7 +14,10 @@ that its memory is its own, and reports:
   (``Compiled.memory_analysis()``: argument, output and temporary buffers, in bytes).
 
 ``--quick`` drops the largest point of each axis; ``--populations`` replaces the population axis
-(on an accelerator, say, to go past 10,000). Runs on JAX's default backend (the CPU devices, or
+(on an accelerator, say, to go past 10,000) and ``--axes`` keeps only the axes named.
+``--program fused`` measures the single-kernel time loop of :mod:`jaxflex.fused` (a GPU) instead
+of ``simulate_batch``'s XLA program; each point also times the per-candidate coefficients (the
+modal decomposition) alone. Runs on JAX's default backend (the CPU devices, or
 one GPU where there is one; recorded with each point). Writes ``benchmarks/results/scaling.json``
 (``--out`` elsewhere).
 """
@@ -46,16 +49,30 @@ def peak_rss_mb() -> float:
     return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
 
 
-def measure(n_elements: int, duration_s: float, population: int, seed: int) -> dict:
+def best_time(run, budget_s: float = LONG_RUN_S) -> float:
+    """Best of up to three timed calls of ``run`` after a warm-up call (fewer past ``budget_s``)."""
+    run()
+    times: list[float] = []
+    while len(times) < 3 and sum(times) < budget_s:
+        start = time.perf_counter()
+        run()
+        times.append(time.perf_counter() - start)
+    return min(times)
+
+
+def measure(
+    n_elements: int, duration_s: float, population: int, seed: int, program: str = "scan"
+) -> dict:
     """One point, in this process: compile, time and account for the memory of the program."""
     import jax
     import numpy as np
 
     import jaxflex  # noqa: F401  (float64, host devices)
+    from jaxflex.fused import simulate_fused
     from jaxflex.model import Model
     from jaxflex.parallel import population_vmap
     from jaxflex.signals import reference_input
-    from jaxflex.simulation import simulate_core
+    from jaxflex.simulation import simulate_core, step_coefficients
     from jaxflex.testbed import Testbed
 
     rss_after_import = peak_rss_mb()
@@ -64,28 +81,28 @@ def measure(n_elements: int, duration_s: float, population: int, seed: int) -> d
     u = np.random.default_rng(seed).uniform(size=(population, len(model.space)))
     params = model.space.from_unit(u)
     dt = model.testbed.dt
-    program = jax.jit(  # what simulate_batch runs
-        lambda p, t: population_vmap(lambda q, s: simulate_core(model, q, s, dt), p, t)
-    )
+    if program == "fused":
+        jitted = jax.jit(lambda p, t: simulate_fused(model, p, t, dt))
+    else:
+        jitted = jax.jit(  # what simulate_batch runs
+            lambda p, t: population_vmap(lambda q, s: simulate_core(model, q, s, dt), p, t)
+        )
     start = time.perf_counter()
-    compiled = program.lower(params, torque).compile()
+    compiled = jitted.lower(params, torque).compile()
     compile_s = time.perf_counter() - start
-    compiled(params, torque).joint_angle.block_until_ready()  # first touch of the buffers
-    times: list[float] = []
-    while len(times) < 3 and sum(times) < LONG_RUN_S:
-        start = time.perf_counter()
-        compiled(params, torque).joint_angle.block_until_ready()
-        times.append(time.perf_counter() - start)
-    best = min(times)
+    best = best_time(lambda: compiled(params, torque).joint_angle.block_until_ready())
+    coefficients = jax.jit(jax.vmap(lambda q: step_coefficients(model, q, dt)))
+    coefficients_s = best_time(lambda: jax.block_until_ready(coefficients(params)))
     memory = compiled.memory_analysis()
     return {
         "n_elements": n_elements,
         "duration_s": duration_s,
         "samples": int(torque.size),
         "population": population,
+        "program": program,
         "compile_s": compile_s,
         "run_s": best,
-        "timed_runs": len(times),
+        "coefficients_s": coefficients_s,
         "simulations_per_s": population / best,
         "candidate_samples_per_s": population * torque.size / best,
         "peak_rss_mb": peak_rss_mb(),
@@ -110,9 +127,10 @@ def points(axes: dict[str, tuple], quick: bool) -> list[dict]:
     return out
 
 
-def run_point(point: dict, seed: int) -> dict:
+def run_point(point: dict, seed: int, program: str) -> dict:
     """:func:`measure` in a fresh interpreter (its peak memory is this point's alone)."""
-    command = [sys.executable, __file__, "--point", json.dumps(point), "--seed", str(seed)]
+    command = [sys.executable, __file__, "--point", json.dumps(point), "--seed", str(seed),
+               "--program", program]
     done = subprocess.run(command, capture_output=True, text=True, check=False)
     if done.returncode != 0:
         raise RuntimeError(f"point {point} failed:\n{done.stderr[-3000:]}")
@@ -131,11 +149,15 @@ def main() -> None:
     parser.add_argument("--quick", action="store_true", help="drop the largest point of each axis")
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--populations", type=int, nargs="+", help="the population axis")
+    parser.add_argument("--axes", nargs="+", choices=list(AXES), help="only these axes")
+    parser.add_argument("--program", choices=("scan", "fused"), default="scan",
+                        help="simulate_batch's XLA program (scan) or the fused GPU kernel")
     parser.add_argument("--point", help=argparse.SUPPRESS)  # internal: one point, JSON out
     parser.add_argument("--out", default=str(RESULTS))
     args = parser.parse_args()
     if args.point:
-        print(json.dumps(measure(**json.loads(args.point), seed=args.seed)))
+        print(json.dumps(measure(**json.loads(args.point), seed=args.seed,
+                                 program=args.program)))
         return
 
     from _output import checked_out
@@ -147,15 +169,17 @@ def main() -> None:
         parser.error(f"--populations: each population must be at least 1, got {bad}")
     out = checked_out(parser, args.out)
     axes = {**AXES, "population": tuple(args.populations or AXES["population"])}
+    axes = {k: v for k, v in axes.items() if args.axes is None or k in args.axes}
     started = time.perf_counter()
     rows = []
     for point in points(axes, args.quick):
-        row = run_point(point, args.seed)
+        row = run_point(point, args.seed, args.program)
         rows.append(row)
         print(
             f"n_el {row['n_elements']:3d}, {row['duration_s']:5.1f} s, population "
             f"{row['population']:6d}: compile {row['compile_s']:5.2f} s, run "
-            f"{row['run_s']:8.4f} s, {row['simulations_per_s']:8.0f} sims/s, peak RSS "
+            f"{row['run_s']:8.4f} s (coefficients {row['coefficients_s']:7.4f} s), "
+            f"{row['simulations_per_s']:8.0f} sims/s, peak RSS "
             f"{row['peak_rss_mb']:6.0f} MB, XLA temp {row['xla_temp_mb']:7.1f} MB",
             flush=True,
         )
@@ -174,7 +198,8 @@ def main() -> None:
                 "quick": args.quick,
                 "seed": args.seed,
                 "program": "simulate_batch (population split across the CPU devices, or whole "
-                "on one accelerator)",
+                "on one accelerator)" if args.program == "scan" else "simulate_fused (one GPU "
+                "kernel for the time loop)",
                 "memory": "peak_rss_mb: ru_maxrss of a fresh process per point; xla_*_mb: "
                 "Compiled.memory_analysis() of the program",
             },

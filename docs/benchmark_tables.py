@@ -109,40 +109,27 @@ def scaling_table() -> str:
 
 
 def accelerator_table() -> str:
-    """Simulations per second on one GPU beside the 2-core CPU at the same point
-    (``gpu_h100.json``, ``scaling.json``)."""
-    def key(p: dict) -> tuple:
-        return p["n_elements"], p["duration_s"], p["population"]
+    """Simulations per second on one GPU, the XLA program before and after the batched
+    eigensolver and the fused kernel, beside the 2-core CPU at the same point
+    (``gpu_h200.json``, ``scaling.json``)."""
+    gpu = result("gpu_h200")
+    cpu = {p["population"]: p["simulations_per_s"] for p in result("scaling")["points"]
+           if (p["n_elements"], p["duration_s"]) == (10, 2.0)}
+    before = {p["population"]: p["simulations_per_s"] for p in gpu["before"]["points"]
+              if p["program"] == "scan"}
+    after = {(p["program"], p["population"]): p["simulations_per_s"] for p in gpu["points"]}
 
-    cpu = {key(p): p["simulations_per_s"] for p in result("scaling")["points"]}
+    def rate(value) -> str:
+        return "–" if value is None else f"{value:,.0f}"
+
     rows = []
-    for p in sorted(result("gpu_h100")["points"],
-                    key=lambda p: (p["duration_s"], p["n_elements"], p["population"])):
-        on_cpu = cpu.get(key(p))
-        rows.append([str(p["n_elements"]), f"{p['duration_s']:g} s", f"{p['population']:,}",
-                     "–" if on_cpu is None else f"{on_cpu:,.0f}",
-                     f"{p['simulations_per_s']:,.0f}",
-                     "–" if on_cpu is None else f"{p['simulations_per_s'] / on_cpu:.2f}×"])
-    return _table(["n_el", "record", "population", "2-core CPU simulations/s",
-                   "H100 simulations/s", "H100 / CPU"], rows)
-
-
-def accelerator_commands_table() -> str:
-    """Seconds ``identify`` and ``discover`` on ROTFLEX take on the 2-core CPU (the latest
-    revision of ``time_to_answer.json``) and on one GPU (``gpu_h100.json``)."""
-    label, cpu_revision = list(result("time_to_answer")["revisions"].items())[-1]
-    gpu = result("gpu_h100")["time_to_answer"]
-    names = {"identify_rotflex": "`identify` ROTFLEX", "discover_rotflex": "`discover` ROTFLEX"}
-
-    def cold_warm(run: dict | None) -> str:
-        if run is None or run.get("cold") is None:
-            return "did not finish in its budget"
-        return f"{run['cold']['seconds']:.1f} / {run['warm']['seconds']:.1f}"
-
-    rows = [[name, cold_warm(cpu_revision["runs"].get(command)), cold_warm(gpu.get(command))]
-            for command, name in names.items()]
-    return _table(["command", f"2-core CPU ({label}) s, cold / warm", "H100 s, cold / warm"],
-                  rows)
+    for population in sorted({p for _, p in after}):
+        fused, on_cpu = after.get(("fused", population)), cpu.get(population)
+        rows.append([f"{population:,}", rate(on_cpu), rate(before.get(population)),
+                     rate(after.get(("scan", population))), rate(fused),
+                     "–" if on_cpu is None else f"{fused / on_cpu:.1f}×"])
+    return _table(["population", "2-core CPU", "H200 XLA, before", "H200 XLA", "H200 fused",
+                   "fused / CPU"], rows)
 
 
 def substeps_table() -> str:
@@ -345,7 +332,6 @@ TABLES: dict[str, Callable[[], str]] = {
     "peers": peers_table,
     "scaling": scaling_table,
     "accelerator": accelerator_table,
-    "accelerator_commands": accelerator_commands_table,
     "substeps": substeps_table,
     "accuracy": accuracy_table,
     "profile": profile_table,
