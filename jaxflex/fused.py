@@ -100,16 +100,17 @@ def _lane_coefficients(c: StepCoefficients, modes: int) -> StepCoefficients:
 def simulate_fused(
     model: Model,
     params: Params,
-    torque: Float[Array, " n"],
+    torque: Float[Array, " n"] | Float[Array, "P n"],
     dt: float,
     *,
     block: int = BLOCK,
     num_warps: int = 1,
     interpret: bool | None = None,
 ) -> Outputs:
-    """Simulate a population (each parameter ``(P,)``) under one torque record in one kernel;
-    pure and traceable. Gives :func:`jaxflex.simulation.simulate_core`'s outputs, vmapped, to
-    round-off (the products are summed in another order).
+    """Simulate a population (each parameter ``(P,)``) in one kernel, under one torque record
+    or, ``(P, n)``, each candidate under its own; pure and traceable. Gives
+    :func:`jaxflex.simulation.simulate_core`'s outputs, vmapped, to round-off (the products are
+    summed in another order).
 
     ``interpret`` runs the kernel through Pallas' interpreter (default: where the default backend
     is not a GPU; slow, for tests)."""
@@ -125,16 +126,20 @@ def simulate_fused(
     if interpret is None:
         interpret = jax.default_backend() != "gpu"
     population = next(iter(params.values())).shape[0]
+    torque = jnp.broadcast_to(torque, (population, torque.shape[-1]))
     lanes = -(-population // block) * block
-    params = {k: jnp.pad(v, (0, lanes - population), mode="edge") for k, v in params.items()}
-    n, n_sub = torque.shape[0], model.n_substeps
+    params, torque = jax.tree.map(
+        lambda v: jnp.pad(v, [(0, lanes - population)] + [(0, 0)] * (v.ndim - 1), mode="edge"),
+        (params, torque),
+    )
+    n, n_sub = torque.shape[1], model.n_substeps
 
-    def prepare(q):
+    def prepare(q, torque):
         c = step_coefficients(model, q, dt)
         dynamics = model_dynamics(model, q, dt, c)
         return c, dynamics.start(None), dynamics.fine_torque(torque)
 
-    coefficients, state, fine = jax.vmap(prepare)(params)
+    coefficients, state, fine = jax.vmap(prepare)(params, torque)
     modes = 1 << (coefficients.system.hub.shape[-1] - 1).bit_length()
     coefficients = jax.vmap(lambda c: _lane_coefficients(c, modes))(coefficients)
     theta_r, vel_r, eta, deta, *friction = state

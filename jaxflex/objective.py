@@ -237,13 +237,18 @@ class Objective(eqx.Module):
 
     def _fused_costs(self, population: Float[Array, "P d"]) -> Float[Array, " P"]:
         full = jax.vmap(lambda u: self.full(self.from_unit(u)))(population)
+        count = population.shape[0]
 
-        def record(torque):  # (P, C, n)
-            outputs = fused.simulate_fused(self.model, full, torque, self.dt)
-            return jax.vmap(self._read)(full, outputs)
+        def group(torque):  # (P, R, C, n): the group's records side by side in one kernel
+            records = torque.shape[0]
+            every = jax.tree.map(lambda v: jnp.tile(v, records), full)  # record-major lanes
+            outputs = fused.simulate_fused(self.model, every, jnp.repeat(torque, count, 0),
+                                           self.dt)
+            read = jax.vmap(self._read)(every, outputs)
+            return jnp.swapaxes(read.reshape(records, count, *read.shape[1:]), 0, 1)
 
-        simulated = [jnp.stack([record(t) for t in group], axis=1) for group in self.torque]
-        return jax.vmap(lambda *group: jnp.sum(self._stacked(group) ** 2))(*simulated)
+        simulated = [group(torque) for torque in self.torque]
+        return jax.vmap(lambda *groups: jnp.sum(self._stacked(groups) ** 2))(*simulated)
 
     # --- layout (NumPy, for noise estimates and reports) ------------------------------------
     def layout(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
