@@ -9,6 +9,7 @@ import pytest
 
 from jaxflex import fused
 from jaxflex.data import Dataset
+from jaxflex.effects import library
 from jaxflex.effects.gravity import Gravity
 from jaxflex.effects.payload import Payload
 from jaxflex.effects.stribeck import Stribeck
@@ -106,10 +107,11 @@ def _all_eqns(jaxpr):
                 yield from _all_eqns(inner)
 
 
-@pytest.mark.parametrize("model", [RIG, Model()], ids=["rig", "reference"])
+@pytest.mark.parametrize("model", [RIG, Model(), Model().with_effects(*library())],
+                         ids=["rig", "reference", "every effect"])
 def test_the_kernel_is_one_triton_can_compile(model, population):
     """What Triton refused on the GPU: a loop condition per lane, and empty arrays (the
-    reference model has no loads)."""
+    reference model has no loads); and every effect of the library's laws lowers."""
     pytest.importorskip("jax._src.pallas.triton.pallas_call_registration")
     params = {k: jnp.zeros(64) + v for k, v in model.space.reference().items()}
     torque = population[1]
