@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from jaxflex import fused
-from jaxflex.data import Dataset
+from jaxflex.data import Dataset, Record
 from jaxflex.effects import library
 from jaxflex.effects.gravity import Gravity
 from jaxflex.effects.payload import Payload
@@ -18,7 +18,6 @@ from jaxflex.model import Model
 from jaxflex.objective import build_objective
 from jaxflex.signals import reference_input
 from jaxflex.simulation import OUTPUT_NAMES, simulate_batch, simulate_core
-from jaxflex.synthetic import make_records
 from jaxflex.testbed import Testbed
 
 RIG = Model(
@@ -54,12 +53,19 @@ def test_the_kernel_gives_the_simulators_outputs_on_another_rig(population):
     assert np.any(np.abs(np.asarray(scan.joint_velocity)) < 1e-6)
 
 
+def _measured(name: str, duration: float):
+    """A record of the rig as a logger would hand it over: any motion will do for the costs."""
+    time, torque = reference_input(name, duration=duration, dt=RIG.testbed.dt)
+    noise = np.random.default_rng(len(name)).standard_normal((2, time.size))
+    return Record(time=time, torque=torque, joint_angle=0.2 * np.sin(9.0 * time) + 1e-3 * noise[0],
+                  tip_acceleration=noise[1], name=name)
+
+
 def test_where_the_kernel_is_preferred_a_generation_costs_what_it_costs_in_the_scan(monkeypatch):
     """The paths a GPU takes, forced here (through the interpreter): identification's fitness,
     over records of two lengths (a group of two and a group of one), and simulate_batch."""
-    two = make_records(RIG, inputs=("pulse", "half_sine"), duration=0.16, seed=1)
-    one = make_records(RIG, inputs=("triangular",), duration=0.1, seed=2)
-    objective = build_objective(Dataset([*two, *one]), RIG)
+    records = [_measured("pulse", 0.16), _measured("half_sine", 0.16), _measured("triangular", 0.1)]
+    objective = build_objective(Dataset(records), RIG)
     assert [t.shape[0] for t in objective.torque] == [2, 1]
     population = jnp.asarray(np.random.default_rng(4).uniform(size=(3, objective.dim)))
     params = {k: v[:3] for k, v in RIG.space.from_unit(np.asarray(population)).items()}
