@@ -11,11 +11,11 @@ modal decomposition) are formed outside, by XLA (:func:`jaxflex.simulation.step_
 Measured on an H200 (``benchmarks/results/gpu_h200.json``): 88,000 simulations/s at population
 10,000, 5.4× the XLA program on the same GPU.
 
-Triton's arrays have power-of-two sizes and none is empty: the modes are padded with zeros up to
-a power of two (a padded mode has no coefficients and stays at rest), the population up to whole
-blocks, and empty inputs (no loads) stay out of the kernel. A model that advances only some modes,
-or whose stations or position-dependent loads do not come in a power of two, runs through the XLA
-program instead (:func:`supports`).
+Triton's arrays have power-of-two sizes and none is empty: the modes and the stations are padded
+with zeros up to a power of two (a padded mode has no coefficients and stays at rest, a padded
+station reads nothing and is dropped), the population up to whole blocks, and empty inputs (no
+loads) stay out of the kernel. A model that advances only some modes, or whose position-dependent
+loads do not come in a power of two, runs through the XLA program instead (:func:`supports`).
 """
 
 from __future__ import annotations
@@ -47,13 +47,17 @@ def _power_of_two(n: int) -> bool:
 
 
 def supports(model: Model) -> bool:
-    """Whether :func:`simulate_fused` runs ``model``: every mode advanced, and stations and
-    position-dependent loads each none or a power of two in number."""
+    """Whether :func:`simulate_fused` runs ``model``: every mode advanced, and position-dependent
+    loads none or a power of two in number."""
     loads = jax.eval_shape(
         lambda: model.load_amplitudes(model.space.reference(), jnp.zeros(()), jnp.zeros(()))
     ).shape[0]
-    counts = (len(model.stations), loads)
-    return model.n_modes is None and all(k == 0 or _power_of_two(k) for k in counts)
+    return model.n_modes is None and (loads == 0 or _power_of_two(loads))
+
+
+def _power_above(n: int) -> int:
+    """The least power of two not below ``n`` (n ≥ 1)."""
+    return 1 << (n - 1).bit_length()
 
 
 def preferred(model: Model) -> bool:
@@ -63,18 +67,20 @@ def preferred(model: Model) -> bool:
     return enabled and jax.default_backend() == "gpu" and supports(model)
 
 
-def _lane_coefficients(c: StepCoefficients, modes: int) -> StepCoefficients:
-    """``c`` with its mode axis padded with zeros to ``modes``, without what the time loop never
-    reads (the mode shapes and the rest state)."""
-    m = c.system.hub.shape[-1]
+def _lane_coefficients(c: StepCoefficients, modes: int, stations: int) -> StepCoefficients:
+    """``c`` with its mode axis padded with zeros to ``modes`` and its stations to ``stations``
+    (a padded station reads nothing), without what the time loop never reads (the mode shapes
+    and the rest state)."""
+    m, k = c.system.hub.shape[-1], c.system.station_radius.shape[0]
 
-    def pad(a: Array) -> Array:
-        return jnp.pad(a, [(0, 0)] * (a.ndim - 1) + [(0, modes - m)])
+    def pad(a: Array, rows: int = 0) -> Array:  # the mode axis last, rows (stations) first
+        leading = [(0, rows)] + [(0, 0)] * (a.ndim - 2) if a.ndim > 1 else []
+        return jnp.pad(a, [*leading, (0, modes - m)])
 
     system = c.system
     system = eqx.tree_at(
         lambda s: (s.maps, s.damping, s.omega2, s.hub, s.load_modal, s.tip, s.root_curvature,
-                   s.stations, s.shapes, s.initial),
+                   s.stations, s.station_radius, s.shapes, s.initial),
         system,
         (
             jax.tree_util.tree_map(pad, system.maps),
@@ -84,7 +90,8 @@ def _lane_coefficients(c: StepCoefficients, modes: int) -> StepCoefficients:
             pad(system.load_modal),
             pad(system.tip),
             pad(system.root_curvature),
-            tuple(pad(rows) for rows in system.stations),
+            tuple(pad(rows, stations - k) for rows in system.stations),
+            jnp.pad(system.station_radius, (0, stations - k)),
             jnp.zeros((modes,)),
             (system.initial[0], jnp.zeros((modes,))),
         ),
@@ -118,8 +125,8 @@ def simulate_fused(
 
     if not supports(model):
         raise ValueError(
-            "simulate_fused: the model advances only some modes, or has stations or loads not "
-            "in a power of two; simulate_batch runs it"
+            "simulate_fused: the model advances only some modes, or has position-dependent "
+            "loads not in a power of two; simulate_batch runs it"
         )
     if not _power_of_two(block):
         raise ValueError(f"simulate_fused: block must be a power of two, got {block}")
@@ -140,8 +147,9 @@ def simulate_fused(
         return c, dynamics.start(None), dynamics.fine_torque(torque)
 
     coefficients, state, fine = jax.vmap(prepare)(params, torque)
-    modes = 1 << (coefficients.system.hub.shape[-1] - 1).bit_length()
-    coefficients = jax.vmap(lambda c: _lane_coefficients(c, modes))(coefficients)
+    modes = _power_above(coefficients.system.hub.shape[-1])
+    stations = _power_above(len(model.stations)) if model.stations else 0
+    coefficients = jax.vmap(lambda c: _lane_coefficients(c, modes, stations))(coefficients)
     theta_r, vel_r, eta, deta, *friction = state
     eta, deta = (jnp.pad(a, ((0, 0), (0, modes - a.shape[1]))) for a in (eta, deta))
     state = (theta_r, vel_r, eta, deta, *friction)
@@ -205,6 +213,7 @@ def simulate_fused(
         **({} if interpret else _triton_parameters(num_warps)),
     )(*carried, fine)
     outs = [jnp.moveaxis(o, -1, 0)[:population] for o in outs]  # (population, n, …)
+    outs = [o[..., : len(model.stations)] if o.ndim == 3 else o for o in outs]  # real stations
     outputs = Outputs(*jax.tree_util.tree_unflatten(signal_def, outs))
     return jax.vmap(lambda o: with_readings(model, o))(outputs)
 
