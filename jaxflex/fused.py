@@ -1,9 +1,9 @@
 """A whole population's time loop in one GPU kernel (Pallas, Triton).
 
 On a GPU, :func:`jaxflex.simulation.simulate_batch`'s XLA program runs each sub-step as a chain
-of some fifty small kernels, each a pass through the population's state in memory. Here one
-kernel runs the whole record: each program of its grid takes a block of candidates (its lanes),
-keeps their state on the chip and steps it through every sample, writing the outputs as it goes.
+of small kernels, each a pass through the population's state in memory. Here one kernel runs the
+whole record: each program of its grid takes a block of candidates (its lanes), holds their state
+and steps it through every sample, writing the outputs as it goes.
 The step is the simulator's own (:func:`jaxflex.simulation.model_dynamics` with ``fused=True``,
 vmapped over the lanes: its products written as sums, since Triton has no float64 matrix units,
 and the friction solve's loop shared by the lanes); only the per-candidate coefficients (the
@@ -46,6 +46,11 @@ def _power_of_two(n: int) -> bool:
     return n > 0 and n & (n - 1) == 0
 
 
+def _power_above(n: int) -> int:
+    """The least power of two not below ``n`` (n ≥ 1)."""
+    return 1 << (n - 1).bit_length()
+
+
 def supports(model: Model) -> bool:
     """Whether :func:`simulate_fused` runs ``model``: every mode advanced, and position-dependent
     loads none or a power of two in number."""
@@ -54,10 +59,6 @@ def supports(model: Model) -> bool:
     ).shape[0]
     return model.n_modes is None and (loads == 0 or _power_of_two(loads))
 
-
-def _power_above(n: int) -> int:
-    """The least power of two not below ``n`` (n ≥ 1)."""
-    return 1 << (n - 1).bit_length()
 
 
 def preferred(model: Model) -> bool:

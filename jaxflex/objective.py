@@ -228,8 +228,8 @@ class Objective(eqx.Module):
 
     def fitness(self, population: Float[Array, "P d"]) -> Float[Array, " P"]:
         """Cost of every unit-box candidate in one call: vmapped and split across the host's
-        cores (:mod:`jaxflex.parallel`), or on a GPU each record's time loop one kernel for the
-        whole population where the model allows it and the records start at rest
+        cores (:mod:`jaxflex.parallel`), or on a GPU one kernel per group of equally long records
+        for the whole population, where the model allows it and the records start at rest
         (:mod:`jaxflex.fused`); non-finite → ``+inf``."""
         if self.initial_state == "rest" and fused.preferred(self.model):
             return sanitize_fitness(self._fused_costs(population))
