@@ -167,6 +167,12 @@ def main() -> None:
     bad = [p for p in args.populations or () if p < 1]
     if bad:
         parser.error(f"--populations: each population must be at least 1, got {bad}")
+    if args.program == "fused":
+        import jax
+
+        if jax.default_backend() != "gpu":
+            parser.error("--program fused: the kernel runs on a GPU (here it would only be "
+                         f"interpreted), and JAX's default backend is {jax.default_backend()}")
     out = checked_out(parser, args.out)
     axes = {**AXES, "population": tuple(args.populations or AXES["population"])}
     axes = {k: v for k, v in axes.items() if args.axes is None or k in args.axes}
