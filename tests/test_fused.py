@@ -86,24 +86,16 @@ def test_models_the_kernel_cannot_run_are_named():
         simulate_fused(RIG, {}, jnp.zeros(4), 1e-3, block=24)
 
 
-def _kernel_jaxprs(jaxpr):
-    """The kernel bodies of every pallas_call in a closed jaxpr."""
-    for eqn in jaxpr.eqns:
-        if eqn.primitive.name == "pallas_call":
-            yield eqn.params["jaxpr"]
-        for value in eqn.params.values():
-            inner = getattr(value, "jaxpr", None)
-            if inner is not None and hasattr(inner, "eqns"):
-                yield from _kernel_jaxprs(inner)
-
-
-def _all_eqns(jaxpr):
+def _eqns(jaxpr):
+    """Every equation of a jaxpr and of the jaxprs inside its equations (loops, branches,
+    custom rules, kernels)."""
     for eqn in jaxpr.eqns:
         yield eqn
         for value in eqn.params.values():
-            inner = getattr(value, "jaxpr", value)
-            if hasattr(inner, "eqns"):
-                yield from _all_eqns(inner)
+            for inner in value if isinstance(value, tuple) else (value,):
+                inner = getattr(inner, "jaxpr", inner)
+                if hasattr(inner, "eqns"):
+                    yield from _eqns(inner)
 
 
 @pytest.mark.parametrize("model", [RIG, Model(), Model().with_effects(*library())],
@@ -119,8 +111,8 @@ def test_the_kernel_is_one_triton_can_compile(model, population):
         return simulate_fused(model, p, t, model.testbed.dt, interpret=False)
 
     closed = jax.make_jaxpr(program)(params, torque)
-    [kernel] = list(_kernel_jaxprs(closed.jaxpr))
-    for eqn in _all_eqns(kernel):
+    [kernel] = [e.params["jaxpr"] for e in _eqns(closed.jaxpr) if e.primitive.name == "pallas_call"]
+    for eqn in _eqns(kernel):
         for var in list(eqn.invars) + list(eqn.outvars):
             shape = getattr(var.aval, "shape", ())
             assert 0 not in shape, f"empty array in the kernel: {eqn.primitive} {shape}"
