@@ -2,7 +2,7 @@
 
 Three axes through one base point (pulse input, n_el = 10, 2 s at 1 kHz, population 100, two
 sub-steps): the number of finite elements (10, 20, 40), the record length (2, 10, 60 s) and the
-population (1, 10, 100, 1,000, 10,000). Each point runs ``simulate_batch``'s program (the
+population (1, 10, 100, 1,000, 10,000). Each point runs ``simulate_batch``'s XLA program (the
 population split across the CPU devices, :mod:`jaxflex.parallel`) in a fresh Python process, so
 that its memory is its own, and reports:
 
@@ -84,7 +84,7 @@ def measure(
     if program == "fused":
         jitted = jax.jit(lambda p, t: simulate_fused(model, p, t, dt))
     else:
-        jitted = jax.jit(  # what simulate_batch runs
+        jitted = jax.jit(  # what simulate_batch runs where the fused kernel does not
             lambda p, t: population_vmap(lambda q, s: simulate_core(model, q, s, dt), p, t)
         )
     start = time.perf_counter()
@@ -203,9 +203,9 @@ def main() -> None:
                 "axes": {k: v[:-1] if args.quick else v for k, v in axes.items()},
                 "quick": args.quick,
                 "seed": args.seed,
-                "program": "simulate_batch (population split across the CPU devices, or whole "
-                "on one accelerator)" if args.program == "scan" else "simulate_fused (one GPU "
-                "kernel for the time loop)",
+                "program": "simulate_batch's XLA program (population split across the CPU "
+                "devices, or whole on one accelerator)" if args.program == "scan" else
+                "simulate_fused (one GPU kernel for the time loop)",
                 "memory": "peak_rss_mb: ru_maxrss of a fresh process per point; xla_*_mb: "
                 "Compiled.memory_analysis() of the program",
             },
