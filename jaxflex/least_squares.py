@@ -20,14 +20,14 @@ logit path compiles once per fitted set, and a parameter ending on its bound sen
 infinity and uses every step, where the box-aware descent holds it on the bound. The solver is
 stepped in a loop that also stops when the cost only changes at round-off (``ftol``,
 :data:`STALL_STEPS`), because optimistix's own test (the step and every residual within
-``rtol``/``atol``) is not met there. Discovery's solve calls its own compiled Jacobian block
-back (:func:`bounded_least_squares_of`) rather than compiling the simulator's derivatives a
-second time.
+``rtol``/``atol``) is not met there. Discovery's and identification's solves are stepped from
+the host with the residuals and Jacobian of their own compiled programs
+(:func:`bounded_least_squares_of`) rather than compiling the simulator's derivatives a second
+time.
 """
 
 from __future__ import annotations
 
-import itertools
 import math
 from collections.abc import Callable
 from dataclasses import dataclass, field
@@ -39,8 +39,7 @@ import lineax as lx
 import numpy as np
 import optimistix as optx
 from jaxtyping import Array, ArrayLike, Bool, Float
-
-from jaxflex.parallel import usable_cores
+from threadpoolctl import threadpool_limits
 
 RESULT_NAMES: tuple[str, ...] = (
     "successful",
@@ -301,9 +300,11 @@ STALL_STEPS = 6
 shrunk 4⁶ ≈ 4,000-fold: the cost no longer falls above round-off)."""
 
 
-def _bounded_solve(residuals: Residuals, args, start, lower, upper, free, rtol, atol, ftol,
-                   max_steps, marquardt=False, secant=False):
-    """:class:`BoundedLevenbergMarquardt` stepped in a loop that also stops on ``ftol``."""
+def _solver(residuals: Residuals, args, start, lower, upper, free, rtol, atol, marquardt,
+            secant):
+    """The solver and its function of the coordinates (``residuals`` with held coordinates
+    kept at ``start``), and the loop's first carry: ``(y, state, cost_start, cost, done,
+    k)`` (the state's arrays only; :func:`_advance` puts its static part back)."""
     fn = dense_jacobian(lambda y: residuals(jnp.where(free, y, start), args))
 
     def with_aux(y, _):
@@ -311,36 +312,54 @@ def _bounded_solve(residuals: Residuals, args, start, lower, upper, free, rtol, 
 
     descent = BoxedDampedNewton(lower, upper, marquardt, secant)
     solver = BoundedLevenbergMarquardt(rtol, atol, descent)
-    tags = frozenset()
-    state = solver.init(with_aux, start, None, {}, jax.eval_shape(fn, start), None, tags)
+    state = solver.init(with_aux, start, None, {}, jax.eval_shape(fn, start), None, frozenset())
     state, static = eqx.partition(state, eqx.is_array)  # the loop carries arrays only
+    inf = jnp.array(jnp.inf, dtype=start.dtype)  # not weakly typed: a step returns it strong
+    first = (start, state, inf, inf, jnp.array(False), jnp.array(0))
+    return with_aux, solver, static, first
+
+
+def _advance(with_aux, solver, static, ftol, carry):
+    """One step of the solve: the carry after it (the cost at the last accepted point, and
+    whether the solve is done: converged, or with ``ftol`` a small or stalled step)."""
+    y, state, cost_start, cost, _, k = carry
+    tags = frozenset()
+    state = eqx.combine(state, static)
+    y, state, _ = solver.step(with_aux, y, None, {}, state, tags)
+    new_cost = jnp.sum(state.f_info.residual**2)  # at y, the last accepted point
+    accepted = state.num_steps_since_acceptance == 0
+    small = accepted & (k > 0) & (cost - new_cost <= ftol * new_cost)
+    stalled = state.num_steps_since_acceptance >= STALL_STEPS
+    small, stalled = (ftol > 0) & small, (ftol > 0) & stalled
+    converged, _ = solver.terminate(with_aux, y, None, {}, state, tags)
+    cost_start = jnp.where(k == 0, new_cost, cost_start)  # the first step evaluates the start
+    done = converged | small | stalled
+    return y, eqx.filter(state, eqx.is_array), cost_start, new_cost, done, k + 1
+
+
+def _ending(carry, static, start, free):
+    """What a solve returns from its last carry: the point, its result, steps, costs, and the
+    residuals and Jacobian the last accepted step evaluated there."""
+    y, state, cost_start, cost, done, steps = carry
+    state = eqx.combine(state, static)
+    result = optx.RESULTS.where(done, state.result, optx.RESULTS.nonlinear_max_steps_reached)
+    linearization = (state.f_info.residual, state.f_info.jac.as_matrix())
+    return jnp.where(free, y, start), result, steps, cost_start, cost, linearization
+
+
+def _bounded_solve(residuals: Residuals, args, start, lower, upper, free, rtol, atol, ftol,
+                   max_steps, marquardt=False, secant=False):
+    """:class:`BoundedLevenbergMarquardt` stepped in a loop that also stops on ``ftol``."""
+    with_aux, solver, static, first = _solver(residuals, args, start, lower, upper, free, rtol,
+                                              atol, marquardt, secant)
 
     def proceed(carry):
         *_, done, k = carry
         return ~done & (k < max_steps)
 
-    def step(carry):
-        y, state, cost_start, cost, _, k = carry
-        state = eqx.combine(state, static)
-        y, state, _ = solver.step(with_aux, y, None, {}, state, tags)
-        new_cost = jnp.sum(state.f_info.residual**2)  # at y, the last accepted point
-        accepted = state.num_steps_since_acceptance == 0
-        small = accepted & (k > 0) & (cost - new_cost <= ftol * new_cost)
-        stalled = state.num_steps_since_acceptance >= STALL_STEPS
-        small, stalled = (ftol > 0) & small, (ftol > 0) & stalled
-        converged, _ = solver.terminate(with_aux, y, None, {}, state, tags)
-        cost_start = jnp.where(k == 0, new_cost, cost_start)  # the first step evaluates the start
-        done = converged | small | stalled
-        return y, eqx.filter(state, eqx.is_array), cost_start, new_cost, done, k + 1
-
-    inf = jnp.array(jnp.inf)
-    init = (start, state, inf, inf, jnp.array(False), jnp.array(0))
-    y, state, cost_start, cost, done, steps = jax.lax.while_loop(proceed, step, init)
-    state = eqx.combine(state, static)
-    result = optx.RESULTS.where(done, state.result, optx.RESULTS.nonlinear_max_steps_reached)
-    # the residuals and Jacobian the last accepted step evaluated, at y
-    linearization = (state.f_info.residual, state.f_info.jac.as_matrix())
-    return jnp.where(free, y, start), result, steps, cost_start, cost, linearization
+    carry = jax.lax.while_loop(proceed, lambda c: _advance(with_aux, solver, static, ftol, c),
+                               first)
+    return _ending(carry, static, start, free)
 
 
 _bounded_solve_jit = eqx.filter_jit(_bounded_solve)
@@ -391,18 +410,27 @@ def bounded_least_squares(
     last accepted point if its cost is finite and below the start's, else the start.
     """
     solve = _bounded_solve_jit if solve is None else solve
+    p, lower, upper, free = _box(start, lower, upper, free)
+    return _solution(p, *solve(residuals, args, p, lower, upper, free, rtol, atol, ftol,
+                               max_steps, marquardt, secant))
+
+
+def _box(start, lower, upper, free):
+    """A solve's start (clipped into the box where free), box and fitted mask, as arrays."""
     p = jnp.asarray(start, dtype=jnp.float64)
     lower, upper = jnp.asarray(lower, dtype=jnp.float64), jnp.asarray(upper, dtype=jnp.float64)
     free = jnp.ones(p.shape, bool) if free is None else jnp.asarray(free, dtype=bool)
-    p = jnp.where(free, jnp.clip(p, lower, upper), p)
-    end, result, steps, cost_start, cost, linearization = solve(
-        residuals, args, p, lower, upper, free, rtol, atol, ftol, max_steps, marquardt, secant
-    )
+    return jnp.where(free, jnp.clip(p, lower, upper), p), lower, upper, free
+
+
+def _solution(start, end, result, steps, cost_start, cost, linearization) -> BoundedSolution:
+    """The :class:`BoundedSolution` of a solve's ending: its last accepted point if its cost
+    is finite and below the start's, else the start."""
     cost_start, cost = float(cost_start), float(cost)
     cost_start = cost_start if math.isfinite(cost_start) else math.inf
     better = math.isfinite(cost) and cost < cost_start
     return BoundedSolution(
-        value=np.asarray(end if better else p),
+        value=np.asarray(end if better else start),
         cost_start=cost_start,
         cost=cost if better else cost_start,
         result=_result_name(result),
@@ -415,63 +443,71 @@ def bounded_least_squares(
 System = Callable[[np.ndarray], tuple[np.ndarray, np.ndarray]]
 """``system(p)``: the residual vector and its Jacobian at ``p``, computed on the host."""
 
-_SYSTEMS: dict[int, System] = {}
-_TOKENS = itertools.count()
-
-
-def _run_system(token, p):
-    # a callback runs under jax.default_device(its device): reset it, or every jitted function
-    # the system calls compiles a second time for that context
-    with jax.default_device(None), jax.disable_jit(False):
-        r, jac = _SYSTEMS[int(token)](np.asarray(p))
-    return np.asarray(r, dtype=np.float64), np.asarray(jac, dtype=np.float64)
-
-
-def _call_system(p, token, template):
-    shapes = (jax.ShapeDtypeStruct(template.shape, p.dtype),
-              jax.ShapeDtypeStruct(template.shape + p.shape, p.dtype))
-    return jax.pure_callback(_run_system, shapes, token, p, vmap_method="sequential")
-
-
 @jax.custom_jvp
-def _system_residuals(p, token, template):
-    return _call_system(p, token, template)[0]
+def _given(p, residual, jac):
+    """``residual``, whatever ``p``, with the derivative ``jac``: the residuals and Jacobian
+    the host computed at the point the solver evaluates next."""
+    return residual
 
 
-@_system_residuals.defjvp
-def _system_jvp(primals, tangents):
-    r, jac = _call_system(*primals)
-    return r, jac @ tangents[0]
+@_given.defjvp
+def _given_jvp(primals, tangents):
+    _, residual, jac = primals
+    return residual, jac @ tangents[0]
 
 
-def _host_residuals(p: Array, args: tuple) -> Array:
-    return _system_residuals(p, *args)
+def _given_residuals(p: Array, args: tuple) -> Array:
+    return _given(p, *args)
+
+
+@eqx.filter_jit
+def _host_first(start, lower, upper, free, rtol, atol, marquardt, secant, size):
+    """The first carry of a host-driven solve (:func:`bounded_least_squares_of`)."""
+    template = (jnp.zeros(size), jnp.zeros((size, start.shape[0])))
+    return _solver(_given_residuals, template, start, lower, upper, free, rtol, atol, marquardt,
+                   secant)[3]
+
+
+@eqx.filter_jit
+def _host_step(carry, residual, jac, start, lower, upper, free, rtol, atol, ftol, marquardt,
+               secant):
+    """One step of a host-driven solve, given the residuals and Jacobian at the point it
+    evaluates: the carry after it and the solve's ending there (:func:`_ending`)."""
+    with_aux, solver, static, _ = _solver(_given_residuals, (residual, jac), start, lower,
+                                          upper, free, rtol, atol, marquardt, secant)
+    carry = _advance(with_aux, solver, static, ftol, carry)
+    return carry, _ending(carry, static, start, free)
 
 
 def bounded_least_squares_of(system: System, size: int, start: ArrayLike, lower: ArrayLike,
-                             upper: ArrayLike, **options) -> BoundedSolution:
+                             upper: ArrayLike, *, free: ArrayLike | None = None, rtol: float,
+                             atol: float, ftol: float = 0.0, max_steps: int,
+                             marquardt: bool = False, secant: bool = False) -> BoundedSolution:
     """:func:`bounded_least_squares` of a residual vector (length ``size``) and Jacobian that
-    the caller computes (``system``, called back from the compiled solve).
+    the caller computes (``system``).
 
-    The solve compiles without the model in it (a few seconds, once per size) and the
-    caller's own compiled Jacobian serves it: discovery's forward-mode block, which its score
+    The solve is stepped from the host: each compiled step (without the model in it, compiled
+    once per size) is given the residuals and Jacobian at the point it evaluates, which the
+    caller's own compiled program computes — discovery's forward-mode block, which its score
     tests compile anyway, instead of a second compilation of the simulator's derivatives.
-    On a single usable core the solve runs uncompiled instead: XLA's CPU runtime then has one
-    worker, which a compiled solve would hold while the system's compiled code waits for it.
+    Stepped from the host rather than calling the system back from a compiled loop, the
+    system's program has every CPU worker to itself (a loop waiting in a call-back held one:
+    on one core the system waited for ever). The BLAS libraries run on one thread meanwhile:
+    a step's QR factorisation is LAPACK's, whose idle threads otherwise spin on the cores
+    the system's next call needs (a ROTFLEX refit's Jacobian blocks took 1.5 times as long).
     """
-    token = next(_TOKENS)
-    _SYSTEMS[token] = system
-    try:
-        args = (jnp.asarray(token), jnp.zeros(size))
-        if usable_cores() > 1:
-            return bounded_least_squares(_host_residuals, args, start, lower, upper, **options)
-        with jax.disable_jit():
-            return bounded_least_squares(
-                _host_residuals, args, start, lower, upper, solve=_bounded_solve, **options
-            )
-    finally:
-        del _SYSTEMS[token]
-
+    p, lower, upper, free = _box(start, lower, upper, free)
+    fixed = (p, lower, upper, free, rtol, atol)
+    with threadpool_limits(limits=1, user_api="blas"):
+        carry, steps = _host_first(*fixed, marquardt, secant, size), 0
+        while True:
+            residual, jac = system(np.asarray(carry[1].y_eval))
+            carry, end = _host_step(carry, jnp.asarray(residual, dtype=jnp.float64),
+                                    jnp.asarray(jac, dtype=jnp.float64), *fixed, ftol,
+                                    marquardt, secant)
+            steps += 1
+            if steps >= max_steps or bool(carry[4]):
+                return _solution(p, *end)
 
 
 __all__ = [

@@ -113,8 +113,8 @@ def refine(
     the unit box and on the residuals); the defaults resolve the parameters far below their
     statistical uncertainty. The residuals and their Jacobian come from the one compiled
     program :func:`jaxflex.intervals.uncertainty` uses (:func:`jaxflex.intervals.phi_jacobian`,
-    in coordinates linear in the unit box), called back from a solve compiled without the
-    model: the simulator's derivatives compile once per objective, not twice.
+    in coordinates linear in the unit box), given to a solve compiled without the model step by
+    step: the simulator's derivatives compile once per objective, not twice.
     """
     starts = [starts] if isinstance(starts, Mapping) else list(starts)
     if not starts:

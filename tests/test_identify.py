@@ -312,7 +312,7 @@ def decay(p):  # the fit's model, stepped in time as a simulator is (a loop in t
     return y + p[2] - jnp.exp(-3.0 * t) * (1 + 0.1 * jnp.sin(7 * t))
 
 @jax.jit
-def system(p):  # compiled code, called back from the solve
+def system(p):  # compiled code, called between the solve's compiled steps
     return decay(p), jax.jacfwd(decay)(p)
 
 fit = bounded_least_squares_of(system, 60, np.array([1.0, 1.0, 0.0]), np.array([0.1, 0.5, -1.0]),
@@ -321,12 +321,11 @@ print(json.dumps({"value": fit.value.tolist(), "cost": fit.cost}))
 """
 
 
-def test_on_one_core_the_host_system_solve_runs_uncompiled_and_agrees():
-    """On a single usable core XLA's CPU runtime has one worker, which a compiled solve holds
-    while it calls the system back: discovery's refit of the 2 s example record hung there,
-    its Jacobian's compiled code waiting for that worker. On one core the solve runs
-    uncompiled (the system's own code stays compiled) and ends where the compiled solve ends
-    on several cores."""
+def test_on_one_core_a_host_stepped_solve_ends_where_it_ends_on_several():
+    """On a single usable core XLA's CPU runtime has one worker: a compiled solve that called
+    the system back held it while the system's compiled code waited for it (discovery's refit
+    of the 2 s example record hung there). Stepped from the host, the solve ends on one core
+    where it ends on several."""
     import os
     import subprocess
     import sys

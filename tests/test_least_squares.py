@@ -4,7 +4,9 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 import scipy.optimize as so
+from threadpoolctl import threadpool_info
 
+from jaxflex import least_squares
 from jaxflex.least_squares import (
     bounded_least_squares,
     bounded_least_squares_of,
@@ -97,3 +99,30 @@ def test_with_the_secant_curvature_a_box_problem_ends_where_scipy_bvls_does():
     assert np.sum(ref.active_mask != 0) >= 2  # the bounds matter
     np.testing.assert_allclose(fit.value, ref.x, rtol=0, atol=1e-7)
     assert fit.cost == pytest.approx(2 * ref.cost, rel=1e-12)
+
+
+def test_a_host_stepped_solve_compiles_its_step_once_and_keeps_blas_on_one_thread(monkeypatch):
+    """The solve is stepped from the host: its step is traced once however many steps it takes
+    (the first step's inputs are typed as every later step's), and while the caller computes
+    its residuals the BLAS libraries run on one thread (their idle threads would otherwise spin
+    on the cores the caller's program needs); afterwards they have their threads back."""
+    traced = []
+    advance = least_squares._advance
+    monkeypatch.setattr(least_squares, "_advance",
+                        lambda *args: traced.append(1) or advance(*args))
+    system = _quadratic_residuals(np.random.default_rng(11), n=13, d=4)  # a size of its own
+    threads = []
+
+    def counted(x):
+        threads.append(max((lib["num_threads"] for lib in threadpool_info()
+                            if lib["user_api"] == "blas"), default=1))
+        return system(x)
+
+    before = [lib["num_threads"] for lib in threadpool_info()]
+    fit = bounded_least_squares_of(counted, 13, np.zeros(4), -np.ones(4), np.ones(4),
+                                   rtol=1e-12, atol=1e-12, ftol=1e-14, max_steps=50,
+                                   marquardt=True, secant=True)
+    assert fit.steps >= 4 and len(threads) == fit.steps
+    assert len(traced) == 1
+    assert set(threads) == {1}
+    assert [lib["num_threads"] for lib in threadpool_info()] == before
