@@ -81,9 +81,8 @@ KEPT_POINTS = 16
 
 SOLVE_COLUMNS = 16
 
-"""A refit's solve has a multiple of this many columns (held ones pad the fitted): compiled
-once per process (it calls its Jacobian back, which the disk cache cannot keep), not once per
-number of fitted parameters."""
+"""A refit's solve has a multiple of this many columns (held ones pad the fitted): its step
+compiles once, not once per number of fitted parameters."""
 
 
 LM_STEPS = 30
@@ -110,7 +109,7 @@ class Engine:
     Every Jacobian of a run (score tests, each Levenberg–Marquardt step of each refit) comes
     from the one compiled forward-mode block (``jacobian_block``), its columns kept for the points
     last evaluated; the refits' bounded Levenberg–Marquardt
-    (:func:`jaxflex.least_squares.bounded_least_squares_of`) calls it back.
+    (:func:`jaxflex.least_squares.bounded_least_squares_of`) is given its columns step by step.
     Coordinates: ``φ = log x`` for active log-scale parameters, else ``x``.
     """
 
