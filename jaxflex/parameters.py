@@ -17,6 +17,7 @@ import math
 from collections.abc import Iterable, Mapping
 from dataclasses import dataclass
 
+import jax
 import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, ArrayLike, Float
@@ -27,6 +28,13 @@ Params = dict[str, Array]
 UNIT_SLACK = 1e-9
 """How far outside ``[0, 1]`` a unit-box coordinate may come back from a round trip through
 physical values (log maps, float32 files) and still count as on the bound."""
+
+
+def _namespace(*values: object):
+    """``jax.numpy`` where any value is traced (inside ``jit``, ``vmap``, ``grad``), else NumPy:
+    a host-side conversion (a report, a seed, a start) compiles nothing."""
+    traced = any(isinstance(leaf, jax.core.Tracer) for leaf in jax.tree.leaves(values))
+    return jnp if traced else np
 
 
 def into_unit_box(u: Float[ArrayLike, "... d"], what: str = "init_population") -> np.ndarray:
@@ -150,49 +158,54 @@ class ParameterSpace:
 
     # --- physical <-> vector ------------------------------------------------------------------
     def to_vector(self, params: Mapping[str, ArrayLike]) -> Float[Array, "... d"]:
-        """Stack named values into a vector (last axis follows ``names``)."""
+        """Stack named values into a vector (last axis follows ``names``); a NumPy array unless
+        a value is traced."""
         missing = [n for n in self.names if n not in params]
         if missing:
             raise KeyError(f"parameter values missing for {missing}")
-        return jnp.stack([jnp.asarray(params[n], dtype=jnp.float64) for n in self.names], axis=-1)
+        xp = _namespace([params[n] for n in self.names])
+        return xp.stack([xp.asarray(params[n], dtype=np.float64) for n in self.names], axis=-1)
 
     def from_vector(self, vector: Float[ArrayLike, "... d"]) -> Params:
-        """Split a vector (last axis) into named values."""
-        vector = jnp.asarray(vector, dtype=jnp.float64)
+        """Split a vector (last axis) into named values (copies, for a NumPy vector)."""
+        xp = _namespace(vector)
+        vector = xp.asarray(vector, dtype=np.float64)
         if vector.shape[-1] != len(self):
             raise ValueError(
                 f"expected a last axis of length {len(self)} ({list(self.names)}), "
                 f"got shape {vector.shape}"
             )
+        if xp is np:
+            return {n: vector[..., i].copy() for i, n in enumerate(self.names)}
         return {n: vector[..., i] for i, n in enumerate(self.names)}
 
     # --- physical <-> unit box ---------------------------------------------------------------
     def to_unit(self, params: Mapping[str, ArrayLike]) -> Float[Array, "... d"]:
         """Physical values → unit box coordinates (log scale where the spec says so)."""
         x = self.to_vector(params)
-        lo, hi = jnp.asarray(self._lower), jnp.asarray(self._upper)
-        log = jnp.asarray(self._log)
-        safe_x = jnp.where(log, jnp.maximum(x, lo * 1e-300), 1.0)
-        u_log = (jnp.log(safe_x) - jnp.log(jnp.where(log, lo, 1.0))) / jnp.where(
-            log, jnp.log(hi / jnp.where(log, lo, 1.0)), 1.0
+        xp = _namespace(x)
+        lo, hi, log = xp.asarray(self._lower), xp.asarray(self._upper), xp.asarray(self._log)
+        safe_x = xp.where(log, xp.maximum(x, lo * 1e-300), 1.0)
+        u_log = (xp.log(safe_x) - xp.log(xp.where(log, lo, 1.0))) / xp.where(
+            log, xp.log(hi / xp.where(log, lo, 1.0)), 1.0
         )
         u_lin = (x - lo) / (hi - lo)
-        return jnp.where(log, u_log, u_lin)
+        return xp.where(log, u_log, u_lin)
 
     def from_unit(self, u: Float[ArrayLike, "... d"]) -> Params:
         """Unit box coordinates → physical values (values outside [0, 1] extrapolate); the
         box maps into the bounds, its faces onto them exactly (the log map's last ulp is not
         trusted)."""
-        u = jnp.asarray(u, dtype=jnp.float64)
-        lo, hi = jnp.asarray(self._lower), jnp.asarray(self._upper)
-        log = jnp.asarray(self._log)
-        safe_lo = jnp.where(log, lo, 1.0)
-        x_log = safe_lo * jnp.exp(u * jnp.log(jnp.where(log, hi, 2.0) / safe_lo))
+        xp = _namespace(u)
+        u = xp.asarray(u, dtype=np.float64)
+        lo, hi, log = xp.asarray(self._lower), xp.asarray(self._upper), xp.asarray(self._log)
+        safe_lo = xp.where(log, lo, 1.0)
+        x_log = safe_lo * xp.exp(u * xp.log(xp.where(log, hi, 2.0) / safe_lo))
         x_lin = lo + u * (hi - lo)
-        x = jnp.where(log, x_log, x_lin)
+        x = xp.where(log, x_log, x_lin)
         inside = (u >= 0.0) & (u <= 1.0)
-        x = jnp.where(inside, jnp.clip(x, lo, hi), x)
-        return self.from_vector(jnp.where(u == 0.0, lo, jnp.where(u == 1.0, hi, x)))
+        x = xp.where(inside, xp.clip(x, lo, hi), x)
+        return self.from_vector(xp.where(u == 0.0, lo, xp.where(u == 1.0, hi, x)))
 
     def unit_seeds(self, params: Mapping[str, ArrayLike], what: str | None = None
                    ) -> Float[np.ndarray, "k d"]:

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import jax
 import numpy as np
 import pytest
 
@@ -25,6 +26,26 @@ def test_the_box_maps_onto_the_bounds_exactly():
         assert float(upper[spec.name]) == spec.upper
     # outside the box the map still extrapolates (it is not clipped)
     assert float(SPACE.from_unit(np.full(len(SPACE), 1.5))["b_v"]) > 0.3
+
+
+def test_host_side_maps_compile_nothing_and_agree_with_the_traced_ones():
+    """Given plain values the maps run in NumPy (a report or a start compiles no program) and
+    give what the same maps give inside ``jit`` to round-off; the named values they return are
+    copies, not views of the caller's vector."""
+    rng = np.random.default_rng(3)
+    u = rng.uniform(-0.1, 1.1, size=(5, len(SPACE)))
+    host = SPACE.from_unit(u)
+    back = SPACE.to_unit(host)
+    assert all(type(v) is np.ndarray for v in host.values()) and type(back) is np.ndarray
+    traced = jax.jit(SPACE.from_unit)(u)
+    for name in SPACE.names:
+        np.testing.assert_allclose(host[name], traced[name], rtol=1e-14, atol=0)
+    np.testing.assert_allclose(back, jax.jit(SPACE.to_unit)(traced), rtol=0, atol=1e-14)
+    np.testing.assert_allclose(back, u, rtol=0, atol=1e-14)
+    vector = SPACE.to_vector({n: host[n][0] for n in SPACE.names})
+    named = SPACE.from_vector(vector)
+    vector[:] = -1.0
+    assert all(float(named[n]) == float(host[n][0]) for n in SPACE.names)
 
 
 def test_a_seed_one_ulp_past_a_log_scaled_bound_enters_the_box_on_it():
