@@ -94,26 +94,29 @@ def _blockwise(fn: Callable[..., _T], population, *args) -> _T:
     return jax.vmap(fn, in_axes=(0,) + (None,) * len(args))(population, *args)
 
 
-def population_vmap(fn: Callable[..., _T], population, *args) -> _T:
+def population_vmap(fn: Callable[..., _T], population, *args, lanes: int = LANES,
+                    min_per_device: int = MIN_PER_DEVICE) -> _T:
     """``jax.vmap(fn, (0, None, ...))(population, *args)``, split across :func:`population_devices`.
 
     ``population`` is an array (or a pytree of arrays) with the population on its leading axis;
     the other ``args`` are shared by every candidate. The population is padded (with copies of
-    its first candidate) to a multiple of :data:`LANES` per device, each device computes its share,
+    its first candidate) to a multiple of ``lanes`` per device, each device computes its share,
     :data:`BLOCK` candidates at a time, and the results (those of the plain vmap) are gathered
-    onto every device. Works inside ``jit`` and outside it.
+    onto every device; a population of fewer than ``min_per_device`` per device is not split.
+    Works inside ``jit`` and outside it.
 
-    Every candidate's result is the same bits on any number of devices from two up: the work
-    always runs as the body of a ``shard_map``, candidates never interact (no reduction crosses
-    them), and a population too small to split is computed whole on every device rather than in
-    a program of another kind. A one-device process compiles the body as part of one ordinary
-    program, which XLA may round differently in the last ulp.
+    With the default ``lanes`` (:data:`LANES`) every candidate's result is the same bits on any
+    number of devices from two up: the work always runs as the body of a ``shard_map``,
+    candidates never interact (no reduction crosses them), and a population too small to split
+    is computed whole on every device rather than in a program of another kind. A one-device
+    process compiles the body as part of one ordinary program, which XLA may round differently
+    in the last ulp.
     """
     devices = population_devices()
     size = _population_size(population)
-    split = len(devices) > 1 and size >= MIN_PER_DEVICE * len(devices)
+    split = len(devices) > 1 and size >= min_per_device * len(devices)
     shares = len(devices) if split else 1
-    pad = -size % (shares * LANES)
+    pad = -size % (shares * lanes)
     if pad:
         population = jax.tree.map(
             lambda x: jnp.concatenate([x, jnp.broadcast_to(x[:1], (pad, *x.shape[1:]))]),
