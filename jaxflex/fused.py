@@ -60,7 +60,6 @@ def supports(model: Model) -> bool:
     return model.n_modes is None and (loads == 0 or _power_of_two(loads))
 
 
-
 def preferred(model: Model) -> bool:
     """Whether populations of ``model`` run through the fused kernel: on a GPU where
     :func:`supports` allows it, unless ``JAXFLEX_FUSED=0``."""
