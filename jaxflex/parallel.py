@@ -112,6 +112,9 @@ def population_vmap(fn: Callable[..., _T], population, *args, lanes: int = LANES
     process compiles the body as part of one ordinary program, which XLA may round differently
     in the last ulp.
     """
+    for name, value in (("lanes", lanes), ("min_per_device", min_per_device)):
+        if not (isinstance(value, int) and value >= 1):
+            raise ValueError(f"population_vmap: {name} must be an int >= 1, got {value!r}")
     devices = population_devices()
     size = _population_size(population)
     split = len(devices) > 1 and size >= min_per_device * len(devices)

@@ -38,6 +38,10 @@ SPLIT_CHECKS = textwrap.dedent(
     x = jnp.linspace(0.0, 1.0, 50)
     y = jax.jit(lambda x: population_vmap(lambda v, k: jnp.sin(k * v), x, 2.0))(x)
     np.testing.assert_allclose(np.asarray(y), np.sin(2.0 * np.asarray(x)), rtol=1e-15)
+    # eight split evenly, no whole vectors asked (a Jacobian block's tangents): padded to nine
+    y = population_vmap(lambda v: jnp.sin(v), x[:8], lanes=1, min_per_device=1)
+    assert y.shape == (8,) and len(y.sharding.device_set) == 3
+    np.testing.assert_allclose(np.asarray(y), np.sin(np.asarray(x[:8])), rtol=1e-15)
     # generation steps whose fitness is split compile once, run and never get worse
     objective = build_objective(make_records(noise=False, duration=0.3))
     for strategy in (DE.paper(population=48), PSO.paper(population=48)):
@@ -76,6 +80,12 @@ def test_pytrees_blocks_and_jit():
     assert one["sum"].shape == (1,)
     with pytest.raises(ValueError, match="leading population axis"):
         population_vmap(fn, {"a": jnp.ones(()), "b": jnp.ones(())}, 0.0)
+    few = jax.tree.map(lambda x: x[:5], population)  # five, no padding asked
+    got = population_vmap(fn, few, 0.5, lanes=1, min_per_device=1)
+    np.testing.assert_array_equal(np.asarray(got["sum"]), np.asarray(want["sum"][:5]))
+    for name, bad in (("lanes", 0), ("min_per_device", 1.5)):
+        with pytest.raises(ValueError, match=f"population_vmap: {name} must be an int >= 1"):
+            population_vmap(fn, few, 0.5, **{name: bad})
 
 
 def test_device_count_setting_is_validated(monkeypatch):
