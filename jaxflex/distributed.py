@@ -220,7 +220,7 @@ def launch_local(argv: Sequence[str], processes: int, prefix: str = "jaxflex") -
     env[LAUNCHER_ENV] = str(os.getpid())
     logs = [tempfile.TemporaryFile() for _ in range(processes)]
     group: list[subprocess.Popen] = []
-    previous = _forward_sigterm(group)
+    previous = _forward_signals(group)
     try:
         for rank in range(processes):
             command = [sys.executable, "-m", "jaxflex", *argv, "--process-id", str(rank),
@@ -233,8 +233,8 @@ def launch_local(argv: Sequence[str], processes: int, prefix: str = "jaxflex") -
         failure = _wait(group)
     finally:
         _stop(group)
-        if previous is not None:
-            signal.signal(signal.SIGTERM, previous)
+        for signum, handler in previous.items():
+            signal.signal(signum, handler)
     status = 0 if failure is None else _report(*failure, logs, prefix)
     for log in logs:
         log.close()
@@ -295,20 +295,19 @@ def _stop(group: list[subprocess.Popen]) -> None:
             process.wait()
 
 
-def _forward_sigterm(group: list[subprocess.Popen]):
-    """Stop the group before this process's own SIGTERM handler runs (main thread only);
-    returns the handler it replaced, to put back, or None."""
+def _forward_signals(group: list[subprocess.Popen]) -> dict:
+    """On SIGINT or SIGTERM stop the group before this process's own handler runs (main thread
+    only); returns the handlers it replaced, to put back."""
     if threading.current_thread() is not threading.main_thread():
-        return None
-    previous = signal.getsignal(signal.SIGTERM)
+        return {}
 
     def handler(signum, frame):
         _stop(group)
-        if callable(previous):
-            previous(signum, frame)
+        if callable(previous[signum]):
+            previous[signum](signum, frame)
         raise SystemExit(128 + signum)
 
-    signal.signal(signal.SIGTERM, handler)
+    previous = {s: signal.signal(s, handler) for s in (signal.SIGINT, signal.SIGTERM)}
     return previous
 
 

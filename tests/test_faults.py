@@ -430,6 +430,45 @@ def test_signals_stop_with_one_line_and_no_files(tmp_path, signum, status, word)
     assert [p for p in tmp_path.rglob("*") if p.is_file()] == []
 
 
+SWALLOWED_CTRL_C = """\
+import os, signal, sys, time
+from matplotlib.figure import Figure
+from jaxflex.cli import main
+
+save = Figure.savefig
+
+
+def savefig(self, *args, **kwargs):
+    try:  # Ctrl-C meets a bare `except:`, as in JAX's tracing: the KeyboardInterrupt is lost
+        os.kill(os.getpid(), signal.SIGINT)
+        time.sleep(5.0)
+    except:  # noqa: E722
+        pass
+    return save(self, *args, **kwargs)
+
+
+Figure.savefig = savefig
+sys.exit(main(sys.argv[1:]))
+"""
+
+
+@pytest.mark.parametrize("signum", [signal.SIGINT, signal.SIGTERM])
+def test_a_signal_that_meets_a_bare_except_still_stops_the_command(tmp_path, signum):
+    """The command line ends on the signal itself, not on an exception a library may swallow
+    (the command would then go on and write its outputs)."""
+    script = SWALLOWED_CTRL_C.replace("signal.SIGINT", f"signal.{signum.name}")
+    env = os.environ | {"PYTHONPATH": str(Path(jaxflex.__file__).parent.parent)}
+    done = subprocess.run(
+        [sys.executable, "-c", script, "simulate", "--input", "pulse", "--duration", "0.1",
+         "--out", "s.csv", "--plot", "s.png"], cwd=tmp_path, env=env, capture_output=True,
+        text=True, timeout=120, preexec_fn=_default_sigint)
+    word, status = {signal.SIGINT: ("interrupted", 130), signal.SIGTERM: ("terminated", 143)}[
+        signum]
+    assert (done.returncode, done.stderr) == (
+        status, f"jaxflex simulate: {word}; no partial output was left\n")
+    assert list(tmp_path.iterdir()) == []
+
+
 def test_sigterm_in_the_api_leaves_no_staged_file(tmp_path):
     """Outside the command line too: SIGTERM inside all_or_nothing removes what was staged."""
     script = ("import sys, time\n"

@@ -115,7 +115,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     args.argv = argv  # what a command that starts copies of itself passes on
     use_persistent_cache()
     prefix = f"jaxflex {args.command}"
-    restore = _on_sigterm(prefix)
+    restore = _on_signals(prefix)
     format_warning = warnings.formatwarning
     try:
         warnings.formatwarning = one_line_warning(prefix)
@@ -160,9 +160,11 @@ def use_persistent_cache() -> None:
             jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.0)
 
 
-def _on_sigterm(prefix: str):
-    """On SIGTERM remove the temporary files, say so in one line and exit 143 at once (main
-    thread only; an exception could meet a bare ``except:`` in a library); returns the undo."""
+def _on_signals(prefix: str):
+    """On SIGINT or SIGTERM remove the temporary files, say so in one line and exit 130 or 143
+    at once (main thread only): an exception could meet a bare ``except:`` in a library and be
+    lost (JAX's tracing has several), and the command would go on to write its outputs.
+    Returns the undo."""
     import os
     import threading
 
@@ -170,14 +172,22 @@ def _on_sigterm(prefix: str):
 
     if threading.current_thread() is not threading.main_thread():
         return lambda: None
+    endings = {signal.SIGINT: ("interrupted", EXIT_INTERRUPTED),
+               signal.SIGTERM: ("terminated", EXIT_TERMINATED)}
 
     def handler(signum, frame):
         remove_temporaries()
-        print(f"{prefix}: terminated; no partial output was left", file=sys.stderr, flush=True)
-        os._exit(EXIT_TERMINATED)
+        word, status = endings[signum]
+        print(f"{prefix}: {word}; no partial output was left", file=sys.stderr, flush=True)
+        os._exit(status)
 
-    previous = signal.signal(signal.SIGTERM, handler)
-    return lambda: signal.signal(signal.SIGTERM, previous)
+    previous = {signum: signal.signal(signum, handler) for signum in endings}
+
+    def restore() -> None:
+        for signum, replaced in previous.items():
+            signal.signal(signum, replaced)
+
+    return restore
 
 
 if __name__ == "__main__":
