@@ -1,16 +1,22 @@
 """Synthetic discovery scenarios shared by the discovery tests: records of an arm whose base
 parameters lie away from the reference values, with hidden effects and the spec's noise, and
-where the loop starts (near, not at, the true base parameters)."""
+where the loop starts (near, not at, the true base parameters); and the check of every claim a
+report makes against the statistics it gives for it (:func:`check_claims`)."""
 
 from __future__ import annotations
 
 import functools
+import json
+import re
 
 from helpers import ARMS, REAL_DATA_DIR, or_skip
 
 from jaxflex.diagnosis import NoiseLevel
+from jaxflex.discovery import RULES
+from jaxflex.discovery.explain import LOWERS_FREQUENCIES, noise_claim
 from jaxflex.effects import get_effect
 from jaxflex.model import Model
+from jaxflex.plots.diagnose import _label, plot_diagnosis
 from jaxflex.synthetic import ACCELEROMETER_SIGMA, ENCODER_STEP, make_records
 
 #: Base parameters of the "real" arm: every one away from the paper's value.
@@ -58,3 +64,109 @@ def rotflex_report():
         model=arm, noise=fit_noise(arm, square), t_end=None, budget=(10, 20), max_steps=1,
         seed=0,
     )
+
+
+LAG_EFFECTS = {"delay", "motor_lag"}
+
+
+def _key(entry):
+    """The stated ranking criterion, recomputed from the JSON."""
+    refit = entry["evidence"]["refit"]
+    if refit is not None and refit["confirmed"]:
+        return (0, -refit["lr"], 0.0)
+    return (1, entry["p_value"], -(entry["statistic"] - entry["dof"]))
+
+
+def check_claims(report):
+    """Every sentence of ``report`` against the statistics it is derived from."""
+    data = json.loads(json.dumps(report.to_dict()))
+    assert set(data["claim_rules"]) == set(RULES)
+    steps = data["steps"]
+    ranked = [s for s in report.steps if s.ranking]
+    kept = set(report.added)
+    table = report.table()
+    for step, entries in zip(ranked, data["ranking"], strict=True):
+        i = report.steps.index(step)
+        added_next = report.steps[i + 1].added if i + 1 < len(report.steps) else None
+        # the ranking: monotone in the stated criterion, printed in that order
+        keys = [_key(e) for e in entries]
+        assert keys == sorted(keys), [(e["effect"], k) for e, k in zip(entries, keys, strict=True)]
+        assert [e["rank"] for e in entries] == list(range(1, len(entries) + 1))
+        line = next(x for x in table.splitlines() if x.startswith(f"after '{step.structure}',"))
+        assert "ranked by refit LR among the confirmed, then by score p-value" in line
+        printed = re.findall(r"([\w:]+) \((?:LR|p)=", line)
+        assert printed == [e["effect"] for e in entries[:3]], line
+        for e in entries:
+            ev, status, text = e["evidence"], e["status"], e["explanation"]
+            rules = [c["rule"] for c in e["claims"]]
+            assert set(rules) <= set(RULES) and rules[0] == status
+            assert all(c["text"] in text for c in e["claims"])
+            # only an effect added and kept explains
+            assert ("explain" in text) == (status == "explains"), text
+            if status == "explains":
+                assert e["effect"] == added_next and e["effect"] in kept
+                assert ev["refit"]["confirmed"] and e["rank"] == 1
+            else:
+                assert e["effect"] != added_next
+            if status == "withdrawn":
+                assert e["effect"] in report.withdrawn and ev["refit"]["confirmed"]
+            if status == "lower":
+                assert ev["refit"]["confirmed"] and ev["refit"]["lr"] <= -keys[0][1]
+            if status == "not_confirmed":
+                r = ev["refit"]
+                assert not r["confirmed"]
+                assert r["p_value"] >= r["level"] or r["delta_bic"] >= 0 or r["at_null"]
+            if status == "not_significant":
+                s = ev["score"]
+                assert s["p_value"] >= s["level"] and not s["significant"]
+            # every refitted candidate states its refit gain, the others the first-order one
+            if ev["refit"] is not None:
+                assert f"LR = {ev['refit']['lr']:.3g}" in text
+            else:
+                assert f"S = {ev['score']['S']:.3g}" in text
+            # evidence only where it points to the effect
+            res = ev["resonance"]
+            assert ("resonance" in rules) == bool(res and res["cited"])
+            if "resonance" in rules:
+                assert abs(res["shift_hz"]) > res["resolution_hz"] > 0
+                if e["effect"] in LOWERS_FREQUENCIES:
+                    assert res["shift_hz"] > 0 and "too high" in text
+            lag = ev["lag"]
+            assert ("lag" in rules) == bool(lag and lag["cited"])
+            if lag is not None:
+                assert e["effect"] in LAG_EFFECTS  # never for a torque offset or a gain
+            if "lag" in rules:
+                assert lag["lag_s"] > 0 and abs(lag["value"]) > lag["band"]
+                assert lag["value"] * lag["rate_value"] < 0
+                assert abs(lag["rate_value"]) >= 0.5 * lag["rate_peak"]
+            if "ms" in text and "correlat" in text:
+                assert "lag" in rules
+    # every step's added effect explained somewhere, and nothing else
+    explained = {e["effect"] for entries in data["ranking"] for e in entries
+                 if e["status"] == "explains"}
+    assert explained == {s["added"] for s in steps if s["added"]}
+    for line in report.explanations():
+        assert "Signature" not in line
+    check_titles(report)
+    return data
+
+
+def check_titles(report):
+    """A diagnosis figure calls a channel consistent with the noise only when its test says so."""
+    for step in (report.base, report.final):
+        diag = step.diagnosis
+        fig = plot_diagnosis(diag)
+        titles = [ax.get_title() for ax in fig.axes]
+        for name, channel in diag.channels.items():
+            ok, verdict, statistic = noise_claim(channel, diag.alpha)
+            assert ok == channel.consistent(diag.alpha)
+            label = _label(name)
+            assert f"{label}: {verdict}\n{statistic}" in titles, (verdict, titles)
+            if channel.noise.kind == "white":
+                assert (verdict == "consistent with noise") == (
+                    channel.whiteness.p_value >= diag.alpha
+                    and channel.rms_ratio <= 1.3)
+            # a rejecting Ljung-Box beside "consistent": only where it is not the channel's test
+            acf = next(t for t in titles if t.startswith(f"{label}: whiteness\nLjung-Box"))
+            if ok and channel.whiteness.p_value < diag.alpha:
+                assert channel.noise.kind == "quantised" and "not its noise test" in acf

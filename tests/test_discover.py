@@ -18,7 +18,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 import scipy.stats as st
-from discovery_cases import NOISE, START, TRUTH, hidden, one, rotflex_report
+from discovery_cases import NOISE, START, TRUTH, check_claims, hidden, one, rotflex_report
 
 from jaxflex.cli import main
 from jaxflex.data import save_record
@@ -295,13 +295,16 @@ def test_discover_adds_the_hidden_payload(payload_case):
     assert ("Hz too high" in base.ranking[0].explanation) == (
         shift["shift_hz"] > shift["resolution_hz"]), base.ranking[0].explanation
 
-    data = json.loads(json.dumps(report.to_dict()))
+    data = check_claims(report)  # every sentence against its own statistics
     assert [s["added"] for s in data["steps"]] == [None, None, "payload"]
     for step in data["steps"]:
         assert set(step) >= {"added", "effects", "params", "nrmse", "frf_nrmse", "holdout", "bic"}
         assert set(step["nrmse"]) == {"joint_angle", "tip_acceleration"}
     assert data["steps"][2]["effects"] == ["payload"]
     assert data["ranking"][0][0]["effect"] == "payload"
+    for e in data["ranking"][0][1:]:  # refitted, not added: say why, never "explains"
+        if e["evidence"]["refit"] is not None:
+            assert e["status"] in ("lower", "not_confirmed") and "not added" in e["explanation"]
     assert set(data["ranking"][0][0]) >= {"effect", "statistic", "p_value"}
     assert data["unexplained"] is None
     assert "payload" in report.table()
