@@ -7,7 +7,6 @@ from __future__ import annotations
 
 import argparse
 import importlib.metadata
-import json
 import os
 import subprocess
 import sys
@@ -94,16 +93,6 @@ def test_every_long_command_takes_quiet(command):
     options = {o for a in command_parser(command)._actions for o in a.option_strings
                if a.help != argparse.SUPPRESS}
     assert "--quiet" in options and "--progress" not in options
-
-
-def test_discover_shows_a_bar_when_the_switch_forces_it(monkeypatch, tmp_path, capsys):
-    """``JAXFLEX_PROGRESS=1``: a tqdm bar on stderr, though stderr is not a terminal."""
-    monkeypatch.setenv(ENVIRONMENT_SWITCH, "1")
-    start = tmp_path / "start.json"
-    start.write_text(json.dumps({k: float(v) for k, v in jaxflex.reference_parameters().items()}))
-    assert main(["discover", str(EXAMPLE), "--initial", str(start), "--max-steps", "0"]) == 0
-    err = capsys.readouterr().err
-    assert "\rdiscover: 100%|" in err and "| 1/1 [" in err
 
 
 @pytest.fixture

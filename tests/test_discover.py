@@ -20,6 +20,7 @@ import pytest
 import scipy.stats as st
 from discovery_cases import NOISE, START, TRUTH, check_claims, hidden, one, rotflex_report
 
+from jaxflex._progress import ENVIRONMENT_SWITCH
 from jaxflex.cli import main
 from jaxflex.data import save_record
 from jaxflex.diagnosis import NoiseLevel
@@ -338,8 +339,9 @@ def saved_case(records, tmp_path) -> tuple[list[str], Path]:
     return files, initial
 
 
-def test_cli_discover_writes_the_json_contract(payload_case, tmp_path, capsys):
+def test_cli_discover_writes_the_json_contract(payload_case, tmp_path, capsys, monkeypatch):
     records, _, _ = payload_case
+    monkeypatch.setenv(ENVIRONMENT_SWITCH, "1")  # a bar, though stderr is not a terminal
     files, initial = saved_case(records, tmp_path)
     out = tmp_path / "out.json"
     code = main(["discover", *files, "--initial", str(initial), "--candidates",
@@ -355,7 +357,9 @@ def test_cli_discover_writes_the_json_contract(payload_case, tmp_path, capsys):
     assert [s["structure"] for s in data["steps"]] == ["rigid", "base"]
     assert data["ranking"] == [] and data["unexplained"]["frequency_hz"]
     assert data["settings"]["max_steps"] == 0
-    assert "UNEXPLAINED" in capsys.readouterr().out
+    said = capsys.readouterr()
+    assert "UNEXPLAINED" in said.out
+    assert "\rdiscover: 100%|" in said.err and "| 1/1 [" in said.err
     assert main(["discover", *files, "--candidates", "nope"]) == 2
     assert "unknown effect 'nope'" in capsys.readouterr().err
     assert main(["discover", *files, "--initial", str(initial), "--json", str(out)]) == 2
