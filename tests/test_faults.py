@@ -452,20 +452,16 @@ sys.exit(main(sys.argv[1:]))
 """
 
 
-@pytest.mark.parametrize("signum", [signal.SIGINT, signal.SIGTERM])
-def test_a_signal_that_meets_a_bare_except_still_stops_the_command(tmp_path, signum):
-    """The command line ends on the signal itself, not on an exception a library may swallow
-    (the command would then go on and write its outputs)."""
-    script = SWALLOWED_CTRL_C.replace("signal.SIGINT", f"signal.{signum.name}")
+def test_ctrl_c_that_meets_a_bare_except_still_stops_the_command(tmp_path):
+    """The command line ends on SIGINT itself, as on SIGTERM, not on an exception a library may
+    swallow (the command would then go on and write its outputs, and exit 0)."""
     env = os.environ | {"PYTHONPATH": str(Path(jaxflex.__file__).parent.parent)}
     done = subprocess.run(
-        [sys.executable, "-c", script, "simulate", "--input", "pulse", "--duration", "0.1",
-         "--out", "s.csv", "--plot", "s.png"], cwd=tmp_path, env=env, capture_output=True,
-        text=True, timeout=120, preexec_fn=_default_sigint)
-    word, status = {signal.SIGINT: ("interrupted", 130), signal.SIGTERM: ("terminated", 143)}[
-        signum]
+        [sys.executable, "-c", SWALLOWED_CTRL_C, "simulate", "--input", "pulse", "--duration",
+         "0.1", "--out", "s.csv", "--plot", "s.png"], cwd=tmp_path, env=env,
+        capture_output=True, text=True, timeout=120, preexec_fn=_default_sigint)
     assert (done.returncode, done.stderr) == (
-        status, f"jaxflex simulate: {word}; no partial output was left\n")
+        130, "jaxflex simulate: interrupted; no partial output was left\n")
     assert list(tmp_path.iterdir()) == []
 
 
