@@ -466,20 +466,32 @@ def test_ctrl_c_that_meets_a_bare_except_still_stops_the_command(tmp_path):
 
 
 def test_sigterm_in_the_api_leaves_no_staged_file(tmp_path):
-    """Outside the command line too: SIGTERM inside all_or_nothing removes what was staged."""
-    script = ("import sys, time\n"
+    """Outside the command line too: SIGTERM inside all_or_nothing removes what was staged.
+    The child starts with SIGTERM's default action whatever the test runner passed on (an
+    ignored or blocked signal is inherited), and says what it was given."""
+    script = ("import os, re, signal, sys, time\n"
+              "status = '/proc/self/status'  # Linux: the signals blocked and ignored\n"
+              "given = re.findall(r'Sig(?:Blk|Ign):\\s*\\S+', open(status).read()"
+              " if os.path.exists(status) else '')\n"
+              "signal.pthread_sigmask(signal.SIG_UNBLOCK, {signal.SIGTERM})\n"
+              "signal.signal(signal.SIGTERM, signal.SIG_DFL)\n"
               "from jaxflex._io import all_or_nothing, write_text\n"
               "with all_or_nothing():\n"
               "    write_text(sys.argv[1], 'first')\n"
-              "    print('staged', flush=True)\n"
+              "    print('staged', *given, flush=True)\n"
               "    time.sleep(60)\n")
     env = os.environ | {"PYTHONPATH": str(Path(jaxflex.__file__).parent.parent)}
     proc = subprocess.Popen([sys.executable, "-c", script, str(tmp_path / "a.txt")], env=env,
                             stdout=subprocess.PIPE, text=True)
-    assert proc.stdout.readline() == "staged\n"
+    staged = proc.stdout.readline()
+    assert staged.startswith("staged"), staged
     assert len(temp_files(tmp_path)) == 1
     proc.send_signal(signal.SIGTERM)
-    proc.communicate(timeout=60)
+    try:
+        proc.communicate(timeout=60)
+    except subprocess.TimeoutExpired:
+        proc.kill()
+        pytest.fail(f"SIGTERM did not stop the child; it was started with {staged.split()[1:]}")
     assert proc.returncode == 143
     assert list(tmp_path.iterdir()) == []
 
