@@ -108,12 +108,17 @@ def _input(name: str) -> np.ndarray:
 
 
 @pytest.fixture(scope="module", params=["pulse", "designed"])
-def against_radau(request):
-    """One Radau solution (q, q', q'') and one simulation of the rig per input."""
+def rig_run(request):
+    """One simulation of the rig per input: the input's name, its torque and the outputs."""
     torque = _input(request.param)
-    dt = RIG.testbed.dt
-    states = radau_states(Model(), REFERENCE, torque, dt)
-    return request.param, torque, states, simulate(RIG, REFERENCE, torque, dt)
+    return request.param, torque, simulate(RIG, REFERENCE, torque, RIG.testbed.dt)
+
+
+@pytest.fixture(scope="module")
+def against_radau(rig_run):
+    """:func:`rig_run` and one Radau solution (q, q', q'') of the same input."""
+    name, torque, out = rig_run
+    return name, torque, radau_states(Model(), REFERENCE, torque, RIG.testbed.dt), out
 
 
 def test_station_readings_match_radau_through_own_shape_functions(against_radau):
@@ -136,10 +141,10 @@ def test_station_readings_match_radau_through_own_shape_functions(against_radau)
     assert max(errors.values()) <= LINK_TARGET, (name, errors)
 
 
-def test_sensors_at_the_tip_read_the_tip_outputs_bit_for_bit(against_radau):
+def test_sensors_at_the_tip_read_the_tip_outputs_bit_for_bit(rig_run):
     """The laser at x = L is the simulator's own tip deflection, and adding the rig's sensors
     (and their stations) leaves that output as the sensorless model gives it."""
-    _, torque, _, out = against_radau
+    _, torque, out = rig_run
     plain = simulate(Model(), REFERENCE, torque, RIG.testbed.dt)
     np.testing.assert_array_equal(out.channel("laser"), out.tip_deflection)
     np.testing.assert_array_equal(out.channel("laser"), plain.tip_deflection)
