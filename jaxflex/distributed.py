@@ -307,10 +307,7 @@ def _forward_signals(group: list[subprocess.Popen]) -> dict:
             previous[signum](signum, frame)
         raise SystemExit(128 + signum)
 
-    forwarded = [signal.SIGTERM]
-    if signal.getsignal(signal.SIGINT) is not signal.SIG_IGN:  # a background job's stays so
-        forwarded.append(signal.SIGINT)
-    previous = {s: signal.signal(s, handler) for s in forwarded}
+    previous = {s: signal.signal(s, handler) for s in (signal.SIGINT, signal.SIGTERM)}
     return previous
 
 

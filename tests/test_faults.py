@@ -465,19 +465,6 @@ def test_ctrl_c_that_meets_a_bare_except_still_stops_the_command(tmp_path):
     assert list(tmp_path.iterdir()) == []
 
 
-def test_an_ignored_ctrl_c_stays_ignored(tmp_path):
-    """A command started with SIGINT ignored (a background job) runs through it, as Python
-    itself would, and writes its outputs."""
-    env = os.environ | {"PYTHONPATH": str(Path(jaxflex.__file__).parent.parent)}
-    done = subprocess.run(
-        [sys.executable, "-c", SWALLOWED_CTRL_C, "simulate", "--input", "pulse", "--duration",
-         "0.1", "--out", "s.csv", "--plot", "s.png"], cwd=tmp_path, env=env,
-        capture_output=True, text=True, timeout=120,
-        preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_IGN))
-    assert (done.returncode, done.stderr) == (0, "")
-    assert sorted(p.name for p in tmp_path.iterdir()) == ["s.csv", "s.png"]
-
-
 def test_sigterm_in_the_api_leaves_no_staged_file(tmp_path):
     """Outside the command line too: SIGTERM inside all_or_nothing removes what was staged.
     The child starts with SIGTERM's default action whatever the test runner passed on (an

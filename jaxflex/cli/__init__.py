@@ -161,10 +161,10 @@ def use_persistent_cache() -> None:
 
 
 def _on_signals(prefix: str):
-    """On SIGINT (unless ignored, as in a background job) or SIGTERM remove the temporary files,
-    say so in one line and exit 130 or 143 at once (main thread only): an exception could meet
-    a bare ``except:`` in a library and be lost (JAX's tracing has several), and the command
-    would go on to write its outputs. Returns the undo."""
+    """On SIGINT or SIGTERM remove the temporary files, say so in one line and exit 130 or 143
+    at once (main thread only): an exception could meet a bare ``except:`` in a library and be
+    lost (JAX's tracing has several), and the command would go on to write its outputs.
+    Returns the undo."""
     import os
     import threading
 
@@ -172,9 +172,8 @@ def _on_signals(prefix: str):
 
     if threading.current_thread() is not threading.main_thread():
         return lambda: None
-    endings = {signal.SIGTERM: ("terminated", EXIT_TERMINATED)}
-    if signal.getsignal(signal.SIGINT) is not signal.SIG_IGN:  # a background job's stays so
-        endings[signal.SIGINT] = ("interrupted", EXIT_INTERRUPTED)
+    endings = {signal.SIGINT: ("interrupted", EXIT_INTERRUPTED),
+               signal.SIGTERM: ("terminated", EXIT_TERMINATED)}
 
     def handler(signum, frame):
         remove_temporaries()
