@@ -52,14 +52,12 @@ def enter(args: argparse.Namespace) -> int | None:
             signal.signal(signal.SIGTERM, _stopped_by_launcher)
         try:
             distributed.start(*settings, peer_timeout=args.peer_timeout)
-        except (distributed.PeerTimeout, KeyboardInterrupt) as exc:
+        except distributed.PeerTimeout as exc:  # (Ctrl-C while waiting: main's handler ends it)
             # JAX's half-made runtime aborts or complains when the interpreter ends: leave now
-            from jaxflex.cli import EXIT_INTERRUPTED, EXIT_USAGE
+            from jaxflex.cli import EXIT_USAGE
 
-            interrupted = isinstance(exc, KeyboardInterrupt)
-            print(f"{prefix}: interrupted; no partial output was left" if interrupted
-                  else f"{prefix}: error: {exc}", file=sys.stderr, flush=True)
-            os._exit(EXIT_INTERRUPTED if interrupted else EXIT_USAGE)
+            print(f"{prefix}: error: {exc}", file=sys.stderr, flush=True)
+            os._exit(EXIT_USAGE)
         args.quiet = args.quiet or not distributed.is_main()
     return None
 
