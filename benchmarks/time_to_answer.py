@@ -9,13 +9,16 @@ cold run left it (``warm``). Measured:
 * ``identify`` on ROTFLEX: the square wave, differential evolution, default budget;
 * ``jaxflex --help``.
 
-``--tree PATH`` runs the commands from another checkout (its ``jaxflex`` package on
-``PYTHONPATH``), so a revision can be measured beside another in the same session on the same
-machine: results are stored under ``--label`` (default: the tree's git revision). The real-rig
-records come from ``jaxflex datasets`` (``JAXFLEX_DATA_DIR`` or the network).
+``--tree PATH`` (repeatable) runs the commands from other checkouts (each one's ``jaxflex``
+package on ``PYTHONPATH``), so that revisions are measured beside each other in one session on
+the same machine, labelled by ``--label`` (one per tree; default: the tree's git revision). The
+machine is shared and a run's time varies by a fifth from one run to the next, so the
+revisions take turns: ``--rounds`` rounds, each running every command cold then warm from
+every tree in turn; each stored time is the median of the rounds, beside every round's. The
+real-rig records come from ``jaxflex datasets`` (``JAXFLEX_DATA_DIR`` or the network).
 
-    python benchmarks/time_to_answer.py [--tree PATH] [--label NAME] [--only NAME ...]
-                                        [--breakdown]
+    python benchmarks/time_to_answer.py [--tree PATH ...] [--label NAME ...] [--rounds N]
+                                        [--only NAME ...] [--breakdown]
 
 ``--breakdown`` also runs the warm ``discover`` on ROTFLEX once more in a process of its own with
 its phases timed (:func:`breakdown`): where the time goes, stored beside the timings.
@@ -28,6 +31,7 @@ from __future__ import annotations
 import argparse
 import json
 import os
+import statistics
 import subprocess
 import sys
 import tempfile
@@ -140,39 +144,72 @@ def breakdown(argv: list[str], env: dict[str, str], tree: Path) -> dict:
     return json.loads(done.stdout.strip().splitlines()[-1])
 
 
+def median_of(rounds: list[dict]) -> dict:
+    """One command's cold or warm runs over the rounds: the median seconds and CPU seconds,
+    each round's seconds, and the worst exit status with its last line."""
+    worst = max(rounds, key=lambda run: run["exit"] != 0)
+    return {"seconds": round(statistics.median(r["seconds"] for r in rounds), 2),
+            "cpu_seconds": round(statistics.median(r["cpu_seconds"] for r in rounds), 2),
+            "each_seconds": [r["seconds"] for r in rounds],
+            "load_average_before": [round(r["load_average_before"], 2) for r in rounds],
+            "exit": worst["exit"], "last_line": worst["last_line"]}
+
+
+def revision_label(tree: Path) -> str:
+    """The short git revision of ``tree``."""
+    return subprocess.run(["git", "rev-parse", "--short", "HEAD"], cwd=tree, capture_output=True,
+                          text=True).stdout.strip()
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    parser.add_argument("--tree", type=Path, default=ROOT)
-    parser.add_argument("--label")
+    parser.add_argument("--tree", type=Path, action="append")
+    parser.add_argument("--label", action="append")
+    parser.add_argument("--rounds", type=int, default=3)
     parser.add_argument("--only", nargs="*", default=None)
     parser.add_argument("--breakdown", action="store_true")
     args = parser.parse_args()
-    tree = args.tree.resolve()
-    label = args.label or subprocess.run(
-        ["git", "rev-parse", "--short", "HEAD"], cwd=tree, capture_output=True, text=True
-    ).stdout.strip()
+    trees = [t.resolve() for t in args.tree or [ROOT]]
+    labels = args.label or [revision_label(t) for t in trees]
+    if len(labels) != len(trees) or args.rounds < 1:
+        parser.error("give one --label per --tree, and --rounds >= 1")
+    timings = {label: {} for label in labels}
+    breakdowns = {}
     with tempfile.TemporaryDirectory() as scratch:
         scratch = Path(scratch)
-        cache, data, out = scratch / "cache", scratch / "data", scratch / "out"
-        out.mkdir()
-        env = {k: v for k, v in os.environ.items() if not k.startswith("JAX_")}
-        path = os.pathsep.join(filter(None, [str(tree), env.get("PYTHONPATH")]))
-        env |= {"PYTHONPATH": path, "JAXFLEX_PROGRESS": "0", "JAXFLEX_CACHE_DIR": str(cache)}
-        prepare_data(tree, data, {**env, "JAXFLEX_CACHE_DIR": str(scratch / "other")})
-        runs = {}
-        for name, argv in commands(tree, data, out).items():
-            if args.only and name not in args.only:
-                continue
-            if cache.exists():
-                subprocess.run(["rm", "-rf", str(cache)], check=True)
-            runs[name] = {"cold": timed(argv, env, tree), "warm": timed(argv, env, tree)}
-            print(name, {k: v["seconds"] for k, v in runs[name].items()}, flush=True)
-            if args.breakdown and name == "discover_rotflex":
-                runs[name]["breakdown"] = breakdown(argv, env, tree)
+        data = scratch / "data"
+        base = {k: v for k, v in os.environ.items() if not k.startswith("JAX_")}
+        base |= {"JAXFLEX_PROGRESS": "0"}
+        prepare_data(trees[0], data, {**base, "JAXFLEX_CACHE_DIR": str(scratch / "other")})
+        for round_ in range(args.rounds):
+            for tree, label in zip(trees, labels, strict=True):
+                cache, out = scratch / "cache", scratch / label / "out"
+                out.mkdir(parents=True, exist_ok=True)
+                path = os.pathsep.join(filter(None, [str(tree), base.get("PYTHONPATH")]))
+                env = base | {"PYTHONPATH": path, "JAXFLEX_CACHE_DIR": str(cache)}
+                for name, argv in commands(tree, data, out).items():
+                    if args.only and name not in args.only:
+                        continue
+                    if cache.exists():
+                        subprocess.run(["rm", "-rf", str(cache)], check=True)
+                    runs = timings[label].setdefault(name, {"cold": [], "warm": []})
+                    runs["cold"].append(timed(argv, env, tree))
+                    runs["warm"].append(timed(argv, env, tree))
+                    print(f"round {round_ + 1}, {label}, {name}: cold "
+                          f"{runs['cold'][-1]['seconds']} s, warm {runs['warm'][-1]['seconds']} s",
+                          flush=True)
+                    if args.breakdown and name == "discover_rotflex" and label not in breakdowns:
+                        breakdowns[label] = breakdown(argv, env, tree)
     results = json.loads(RESULTS.read_text()) if RESULTS.exists() else {"revisions": {}}
     results.update(benchmark="time to answer: fresh processes, cold and warm compilation cache",
                    targets_seconds=TARGETS)
-    results["revisions"][label] = {"runs": runs, "provenance": provenance()}
+    for label, commands_run in timings.items():
+        runs = {name: {kind: median_of(each) for kind, each in kinds.items()}
+                for name, kinds in commands_run.items()}
+        if label in breakdowns:
+            runs["discover_rotflex"]["breakdown"] = breakdowns[label]
+        results["revisions"][label] = {"runs": runs, "rounds": args.rounds,
+                                       "provenance": provenance()}
     write_json(RESULTS, results, overwrite=True)
 
 
