@@ -245,7 +245,8 @@ def time_to_answer_table() -> str:
                        f"{run['cold']['seconds']:.1f} / {run['warm']['seconds']:.1f}")
         rows.append(row)
     return _table(["command", "target s (cold / warm)",
-                   *(f"{label} s" for label in revisions)], rows)
+                   *(f"{label} s" + (f", median of {r['rounds']}" if r.get("rounds", 1) > 1
+                                     else "") for label, r in revisions.items())], rows)
 
 
 def time_to_answer_breakdown_table() -> str:
