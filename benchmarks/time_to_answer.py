@@ -147,7 +147,7 @@ def breakdown(argv: list[str], env: dict[str, str], tree: Path) -> dict:
 def median_of(rounds: list[dict]) -> dict:
     """One command's cold or warm runs over the rounds: the median seconds and CPU seconds,
     each round's seconds, and the worst exit status with its last line."""
-    worst = max(rounds, key=lambda run: run["exit"] != 0)
+    worst = next((run for run in rounds if run["exit"] != 0), rounds[0])
     return {"seconds": round(statistics.median(r["seconds"] for r in rounds), 2),
             "cpu_seconds": round(statistics.median(r["cpu_seconds"] for r in rounds), 2),
             "each_seconds": [r["seconds"] for r in rounds],
