@@ -165,7 +165,11 @@ def check_record_length(record: Record, model: Model, modes: int, option: str) -
 
 STILL_FRACTION = 0.02
 """A channel that is zero and still at rest moves, at a record's start, where its value or
-its change over :data:`GUESS_WINDOW` exceeds this fraction of its range."""
+its change over :data:`GUESS_WINDOW` exceeds this fraction of its range (and
+:data:`STILL_SIGMAS` of its noise)."""
+STILL_SIGMAS = 4.0
+"""...and this many standard deviations of its noise: the sensor's stated noise and
+quantisation, or the scatter about the fit where that is larger (``±4σ``, as a rest band)."""
 
 
 def why_not_still(record: Record, model: Model, channels: tuple[str, ...]) -> str | None:
@@ -174,7 +178,9 @@ def why_not_still(record: Record, model: Model, channels: tuple[str, ...]) -> st
     Only channels that read zero and stand still at rest count (angles, velocities,
     deflections, strains; not accelerations or torques, which the input moves at once): a
     quadratic over the first :data:`GUESS_WINDOW` seconds gives each one's start (unless the
-    model reads the channel with an offset of its own) and slope.
+    model reads the channel with an offset of its own) and slope, which count where they
+    exceed both :data:`STILL_FRACTION` of the channel's range and :data:`STILL_SIGMAS` of its
+    noise.
     """
     from jaxflex.sensors import Accelerometer
 
@@ -191,11 +197,16 @@ def why_not_still(record: Record, model: Model, channels: tuple[str, ...]) -> st
         span = float(np.ptp(y))
         if not span > 0:
             continue
-        start, slope = np.polynomial.polynomial.polyfit(t[early], y[early], 2)[:2]
+        coef = np.polynomial.polynomial.polyfit(t[early], y[early], 2)
+        start, slope = coef[:2]
         window = float(t[early][-1])
+        scatter = y[early] - np.polynomial.polynomial.polyval(t[early], coef)
+        sigma = max(float(np.sqrt(np.mean(scatter**2))),
+                    model.sensor(c).noise_std if c in model.channels else 0.0)
+        limit = max(STILL_FRACTION * span, STILL_SIGMAS * sigma)
         if f"sensor_offset:{c}" in model.effect_names:
             start = 0.0  # the model reads it off zero at rest: only its slope counts
-        if abs(start) > STILL_FRACTION * span or abs(slope) * window > STILL_FRACTION * span:
+        if abs(start) > limit or abs(slope) * window > limit:
             moved.append(f"{c} starts at {start:.4g}, changing at {slope:.4g}/s")
     if not moved:
         return None

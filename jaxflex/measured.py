@@ -27,7 +27,13 @@ from jaxflex.metrics import nrmse
 from jaxflex.model import Model
 from jaxflex.noise import NoiseLevel
 from jaxflex.objective import check_inputs, check_records, fitted_channels
-from jaxflex.rest import REST_SPAN, rest_bands, why_not_at_rest
+from jaxflex.rest import (
+    REST_SPAN,
+    rest_bands,
+    rest_stretch,
+    stated_rest,
+    why_not_at_rest,
+)
 from jaxflex.sensors import (
     AbstractSensor,
     DeflectionSensor,
@@ -56,22 +62,23 @@ def logged_sensors(model: Model, record: Record) -> tuple[AbstractSensor, ...]:
 def model_record(model: Model, record: Record, window: Window = None, *,
                  at_rest: bool = True) -> Record:
     """``record`` (cut to ``window``, in its own time) as the rig's model reads it: the input
-    and the sensors' channels re-zeroed at rest (module doc). A record that does not start at
-    rest (``at_rest=False``, for an estimated or periodic start: :mod:`jaxflex.initial`) cannot
-    be re-zeroed there: an encoder is zeroed at its first sample (the estimated start angle
-    takes up the rest), every other sensor keeps the record's zero less its stated offset."""
+    and the sensors' channels re-zeroed at rest (module doc). The readings' units are checked
+    first (:func:`_check_scale`), then the rest at the window's start
+    (:func:`~jaxflex.rest.why_not_at_rest`: the samples before the input switches on, or before
+    the rest the record's header states ends, when that comes within
+    :data:`~jaxflex.rest.REST_SPAN`), and the zero is the mean over those samples of the window.
+    A record that does not start at rest (``at_rest=False``, for an estimated or periodic start:
+    :mod:`jaxflex.initial`) cannot be re-zeroed there: an encoder is zeroed at its first sample
+    (the estimated start angle takes up the rest), every other sensor keeps the record's zero
+    less its stated offset. A rig without sensors reads the simulator's outputs as they are,
+    but for the joint angle, whose zero is an encoder's, re-zeroed at the window's first sample
+    when it starts at rest."""
     check_inputs([record], model)
     if not model.sensors:
-        return record if window is None else record.trim(*window)
+        return _reference_record(record, window, at_rest)
     cut = record.trim(*window) if window is not None else record.trim()
     chosen = logged_sensors(model, record)
-    if at_rest:
-        bands = rest_bands(chosen, record)
-        moving = why_not_at_rest(record.time, {c: record.channel(c) for c in bands}, bands,
-                                 name=record.name, t0=None if window is None else window[0])
-        if moving is not None:
-            raise ValueError(moving)
-    n_rest = max(2, int(round(REST_SPAN / cut.dt))) if at_rest else 1
+    n_rest = _rest_samples(record, window, cut.dt) if at_rest else 1
     columns = {"time": cut.time, cut.input_name: cut.input}
     for sensor in chosen:
         reading = cut.channel(sensor.channel)
@@ -79,6 +86,13 @@ def model_record(model: Model, record: Record, window: Window = None, *,
         zero = float(np.mean(reading[:n_rest])) if rezero else sensor.offset
         columns[sensor.channel] = reading - zero
         _check_scale(model, record.name, sensor, columns[sensor.channel])
+    if at_rest:
+        bands = rest_bands(chosen, record)
+        moving = why_not_at_rest(record.time, {c: record.channel(c) for c in bands}, bands,
+                                 name=record.name, t0=None if window is None else window[0],
+                                 input_signal=record.input, rested=stated_rest(record))
+        if moving is not None:
+            raise ValueError(moving)
     found = ", ".join(s.channel for s in chosen)
     where = "at rest" if at_rest else "at its first sample"
     zeros = ", ".join(f"{s.channel} re-zeroed {where}" if s.rezero and (
@@ -86,6 +100,44 @@ def model_record(model: Model, record: Record, window: Window = None, *,
         for s in chosen)
     ready = cut.with_columns(columns, note=zeros)
     return ready.replace(metadata=ready.metadata | {"rig": model.name, "sensors": found})
+
+
+def _rest_samples(record: Record, window: Window, dt: float) -> int:
+    """How many samples from the window's start re-zero its readings: :data:`REST_SPAN`'s, or
+    those before the input switches on (or the header's stated rest ends) when fewer."""
+    n_rest = max(2, int(round(REST_SPAN / dt)))
+    t0 = None if window is None else window[0]
+    stretch = rest_stretch(record.time, record.input, t0=t0, rested=stated_rest(record))
+    first = int(np.searchsorted(record.time, (record.time[0] if t0 is None else t0) - 1e-6 * dt))
+    return max(1, min(n_rest, stretch.stop - first))
+
+
+def _reference_record(record: Record, window: Window, at_rest: bool) -> Record:
+    """A record of the simulator's outputs cut to ``window``, its joint angle re-zeroed at the
+    first sample when it starts ``at_rest``: an encoder's zero is wherever it was switched on,
+    and the simulation starts from 0."""
+    cut = record if window is None else record.trim(*window)
+    if not at_rest or "joint_angle" not in cut.columns or cut.channel("joint_angle")[0] == 0:
+        return cut
+    angle = cut.channel("joint_angle")
+    columns = {c: cut.channel(c) for c in cut.columns} | {"joint_angle": angle - angle[0]}
+    return cut.with_columns(columns, note=f"joint_angle re-zeroed at rest ({float(angle[0])!r} "
+                            "rad at the first sample)")
+
+
+def rest_span(model: Model) -> float:
+    """Seconds of stillness that show ``model``'s arm at rest when a window is found
+    (``--window auto``): :data:`~jaxflex.rest.REST_SPAN`, or one period of the link's lowest
+    mode with the hub held (at the rig's reference parameters) where that is longer. A lightly
+    damped link rings on while friction holds the hub, and a shorter span can fall on a crest
+    or a trough of the ringing, where the readings pause."""
+    from scipy.linalg import eigh
+
+    structure = model.structure(model.space.reference() | model.fixed_values)
+    mass = np.asarray(structure.mass, dtype=np.float64)[1:, 1:]
+    stiffness = np.asarray(structure.stiffness, dtype=np.float64)[1:, 1:]
+    lowest = float(eigh(stiffness, mass, eigvals_only=True, subset_by_index=[0, 0])[0])
+    return max(REST_SPAN, 2.0 * np.pi / np.sqrt(lowest)) if lowest > 0 else REST_SPAN
 
 
 MAX_STRAIN = 0.01
@@ -191,4 +243,4 @@ def logged_record(
 
 
 __all__ = ["REST_SPAN", "fit_noise", "logged_record", "logged_sensors", "model_record",
-           "prepare", "validate"]
+           "prepare", "rest_span", "validate"]

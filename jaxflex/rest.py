@@ -13,10 +13,18 @@ readings, which leave their bands a little after the arm starts to move.
   ``resolution``, ``noise`` and ``unit``) on one record.
 * :func:`spread_within` compares a peak-to-peak spread with a tolerance, immune to float
   rounding (``0.406 − 0.404`` is within ``0.002``).
+* :func:`rest_stretch` is the stretch of samples judged at a window's start: ``span`` from
+  there, or, where the input switches on (or the file's own header says the rest ends) within
+  it, the ``span`` before that, as far as the record goes. A record whose input starts from
+  zero at its first sample is still at rest there: it moves *right after* that sample, not *at*
+  it; one that moves before its input switches on is not.
 * :func:`why_not_at_rest` says, in one line, why a window does not start at rest (None when it
   does): the channel, how much it changed, the tolerance and its reason, the span and the time.
 * :func:`find_rest` finds where to start a window: at the end of the first stretch of rest
-  that a motion follows, ``span`` before the motion.
+  that a motion follows, ``span`` before the motion (or at the record's first sample, where it
+  rests until its input switches on).
+* :func:`stated_rest` reads how long a record rests from its own header (the ``rest`` line that
+  ``jaxflex simulate --arm`` writes, :func:`rest_note`).
 
 All take a record's columns as arrays by name and its own time, so that, for a
 :class:`~jaxflex.data.Record` ``r`` and an arm's sensors::
@@ -30,6 +38,7 @@ All take a record's columns as arrays by name and its own time, so that, for a
 from __future__ import annotations
 
 import math
+import re
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Protocol
@@ -54,6 +63,8 @@ REST_RANGE_FRACTION = 1e-3
 """Fraction of its reading's range an ideal sensor (no resolution, no noise) may wander."""
 INPUT_FRACTION = 0.01
 """The input is on where its absolute value exceeds this fraction of its peak."""
+REST_KEY = "rest"
+"""The header key under which a record states its own rest (:func:`rest_note`)."""
 REST_HINT = (
     "the simulation starts from rest, so start the window where the arm is still "
     "(window=(t0, t1))"
@@ -126,6 +137,61 @@ def spread_within(values: Float[np.ndarray, " n"], tolerance: float) -> bool:
     return bool(_within(top - bottom, tolerance, max(abs(top), abs(bottom))))
 
 
+def rest_note(t_start: float, t_end: float) -> str:
+    """The value of a record's ``rest`` header line: it rests from ``t_start`` to ``t_end`` (s),
+    where its input starts (:func:`stated_rest` reads it back)."""
+    return (f"at rest from t = {float(t_start)!r} s to t = {float(t_end)!r} s, where the input "
+            "starts")
+
+
+_STATED = re.compile(r"at rest from t = (\S+) s to t = (\S+) s")
+_SIMULATED = re.compile(r", after (\S+) s at rest$")  # the input line of older simulated records
+
+
+def stated_rest(record: Record) -> tuple[float, float] | None:
+    """``(t_start, t_end)``: where ``record``'s own header says it rests (s), or None.
+
+    The ``rest`` line (:func:`rest_note`), or, in a record ``jaxflex simulate --arm`` wrote
+    before that line existed, its input line's "after S s at rest" from its first sample. A line
+    that does not read so states nothing."""
+    meta = record.metadata
+    start = float(record.time[0])
+    found = _STATED.match(meta.get(REST_KEY, "").strip())
+    older = _SIMULATED.search(meta.get("input", "").strip())
+    try:
+        if found:
+            span = float(found[1]), float(found[2])
+        elif older and meta.get("generator") == "jaxflex simulate --arm":
+            span = start, start + float(older[1])
+        else:
+            return None
+    except ValueError:
+        return None
+    return span if all(map(math.isfinite, span)) and span[0] <= span[1] else None
+
+
+def rest_stretch(
+    time: Float[np.ndarray, " n"],
+    input_signal: Float[np.ndarray, " n"] | None = None,
+    span: float = REST_SPAN,
+    *,
+    t0: float | None = None,
+    rested: tuple[float, float] | None = None,
+) -> slice:
+    """The samples judged for rest at ``t0`` (the first sample when None): ``span`` s from
+    there; or, where ``input_signal``, off at ``t0``, switches on (exceeds
+    :data:`INPUT_FRACTION` of its peak) within that span, or the rest a record's header states
+    (``rested``, :func:`stated_rest`) ends within it, the ``span`` s before that, as far back as
+    the record goes. Motion after the input switches on is its response: the arm was at rest
+    where the readings stood still until then."""
+    t = np.asarray(time, dtype=np.float64)
+    span = finite_float(span, "span", minimum=0.0, strict=True)
+    n = _samples(t, span)
+    first = _first(t, t0)
+    return _stretch(t, None if input_signal is None else np.asarray(input_signal, np.float64),
+                    first, n, rested)
+
+
 def why_not_at_rest(
     time: Float[np.ndarray, " n"],
     channels: Mapping[str, Float[np.ndarray, " n"]],
@@ -134,23 +200,26 @@ def why_not_at_rest(
     *,
     name: str,
     t0: float | None = None,
+    input_signal: Float[np.ndarray, " n"] | None = None,
+    rested: tuple[float, float] | None = None,
 ) -> str | None:
-    """None when record ``name`` is at rest for ``span`` s from ``t0`` (its first sample when
-    None), else one line that says why: each channel that changes by more than its tolerance,
-    by how much, and the tolerance's reason."""
-    time, channels, bands, _, n = _checked(name, time, channels, tolerances, None, span)
-    start = float(time[0]) if t0 is None else finite_float(t0, "t0")
-    first = int(np.searchsorted(time, start - 1e-6 * _step(time)))
-    if first >= time.size:
-        raise ValueError(
-            f"record {name!r}: t0={start!r} s is after its last sample at {float(time[-1])!r} s"
-        )
-    reasons = _unrest(channels, bands, slice(first, first + n))
+    """None when record ``name`` is at rest at ``t0`` (its first sample when None), else one
+    line that says why: each channel that changes by more than its tolerance, by how much, and
+    the tolerance's reason. The samples judged are :func:`rest_stretch`'s: ``span`` s from
+    ``t0``, or those before ``input_signal`` switches on (or the header's stated rest
+    ``rested`` ends), when that comes sooner."""
+    time, channels, bands, u, n = _checked(name, time, channels, tolerances, input_signal, span)
+    first = _first(time, t0, name)
+    cut = _stretch(time, u, first, n, rested)
+    reasons = _unrest(channels, bands, cut)
     if not reasons:
         return None
+    where = (f"in the first {span:g} s" if cut.start == first and cut.stop == first + n else
+             f"from t = {_time(float(time[cut.start]))} s until its input switches on at "
+             f"t = {_time(float(time[min(cut.stop, time.size - 1)]))} s")
     return (
         f"record {name!r} does not start at rest at t = {_time(float(time[first]))} s: "
-        f"{' and '.join(reasons)} in the first {span:g} s; {REST_HINT}"
+        f"{' and '.join(reasons)} {where}; {REST_HINT}"
     )
 
 
@@ -162,6 +231,8 @@ def find_rest(
     span: float = REST_SPAN,
     *,
     name: str,
+    rested: tuple[float, float] | None = None,
+    opening: float | None = None,
 ) -> float:
     """The time to start a window of record ``name`` at: ``span`` s before its motion begins.
 
@@ -175,18 +246,31 @@ def find_rest(
     on, it starts where the stillness begins.
 
     It is the rest before the *first* motion: the model starts from rest once, and a later rest
-    would leave out what came before it. A record that starts in motion is taken from the first
-    rest that a motion follows. Raises a one-line ValueError when the record never rests for
-    ``span`` s before it moves, or never moves.
+    would leave out what came before it. A record whose readings stand still at its first
+    sample until its input switches on (or its header's stated rest ``rested`` ends) within
+    ``span`` starts at rest there (:func:`rest_stretch`): it is taken from its first sample. A
+    record that starts in motion is taken from the first rest that a motion follows. With
+    ``opening`` (s, below ``span``), a record whose readings stand still from its first sample
+    for less than ``span`` but at least ``opening`` — all it holds before it moves — is taken
+    from that rest (found over ``opening``) where the readings stay within their tolerances
+    all along it. Raises a one-line ValueError when the record never rests for ``span`` s
+    before it moves, or never moves.
     """
     time, channels, bands, u, n = _checked(name, time, channels, tolerances, input_signal, span)
     never = f"record {name!r} is never at rest for {span:g} s before it moves"
+    start = _stretch(time, u, 0, n, rested)
+    if start.stop < n and not _unrest(channels, bands, start):
+        return float(time[0])  # still until its input switches on: it starts at rest
+    still = _still(channels, bands, n) if time.size >= n else np.zeros(1, dtype=bool)
+    if opening is not None and opening < span and not still[0]:
+        n_open = _samples(time, finite_float(opening, "opening", minimum=0.0, strict=True))
+        if time.size >= n_open and _still(channels, bands, n_open)[0]:
+            t0 = find_rest(time, channels, bands, u, opening, name=name, rested=rested)
+            end = int(np.searchsorted(time, t0 - 1e-6 * _step(time))) + n_open
+            if not _unrest(channels, bands, slice(0, end)):
+                return t0
     if time.size < n:
         raise ValueError(f"{never}: it lasts {_time(float(time[-1] - time[0]))} s")
-    still = np.ones(time.size - n + 1, dtype=bool)  # by the first of n samples
-    for c, y in channels.items():
-        top, bottom = _sliding(maximum_filter1d, y, n), _sliding(minimum_filter1d, y, n)
-        still &= _within(top - bottom, bands[c].tolerance, np.maximum(abs(top), abs(bottom)))
     if not still.any():
         raise ValueError(
             f"{never}: from its first sample at t = {_time(float(time[0]))} s "
@@ -215,6 +299,49 @@ def find_rest(
         motion = first + int(off[0]) + int(switch[0]) if switch.size else motion
     latest = np.flatnonzero(still[first : max(first, motion - n) + 1])
     return float(time[first + int(latest[-1])])
+
+
+def _still(channels, bands, n: int) -> np.ndarray:
+    """By the first of every ``n`` samples: every channel within its tolerance over them."""
+    still = np.ones(next(iter(channels.values())).size - n + 1, dtype=bool)
+    for c, y in channels.items():
+        top, bottom = _sliding(maximum_filter1d, y, n), _sliding(minimum_filter1d, y, n)
+        still &= _within(top - bottom, bands[c].tolerance, np.maximum(abs(top), abs(bottom)))
+    return still
+
+
+def _samples(time: np.ndarray, span: float) -> int:
+    """Samples in ``span`` s (both ends counted), at least 2."""
+    return max(2, math.ceil(span / _step(time) - 1e-6) + 1)
+
+
+def _first(time: np.ndarray, t0: float | None, name: str = "") -> int:
+    """The index of the first sample at or after ``t0`` (None: the first sample)."""
+    start = float(time[0]) if t0 is None else finite_float(t0, "t0")
+    first = int(np.searchsorted(time, start - 1e-6 * _step(time)))
+    if first >= time.size:
+        raise ValueError(
+            f"record {name!r}: t0={start!r} s is after its last sample at {float(time[-1])!r} s"
+        )
+    return first
+
+
+def _stretch(time: np.ndarray, u: np.ndarray | None, first: int, n: int,
+             rested: tuple[float, float] | None) -> slice:
+    """:func:`rest_stretch` by sample indices (``n`` samples in the span)."""
+    ends = []
+    if u is not None and u.size:
+        on = np.flatnonzero(np.abs(u[first : first + n]) > INPUT_FRACTION * np.max(np.abs(u)))
+        if on.size and on[0] > 0:  # off at first, switched on within the span
+            ends.append(first + int(on[0]))
+    if rested is not None:
+        slack = 1e-6 * _step(time)
+        if rested[0] - slack <= time[first] <= rested[1] + slack:
+            ends.append(int(np.searchsorted(time, rested[1] + slack, side="right")))
+    end = max(ends, default=first + n)
+    if end >= first + n:
+        return slice(first, first + n)
+    return slice(max(0, end - n), end)
 
 
 def _within(spread, tolerance: float, magnitude):
@@ -258,8 +385,7 @@ def _checked(name, time, channels, tolerances, input_signal, span):
         raise ValueError(f"{where}: no rest tolerance for channel(s) {missing}")
     bands = {c: _band(where, c, tolerances[c]) for c in arrays}
     u = None if input_signal is None else _column(where, "input", input_signal, t.size)
-    n = max(2, math.ceil(span / _step(t) - 1e-6) + 1)
-    return t, arrays, bands, u, n
+    return t, arrays, bands, u, _samples(t, span)
 
 
 def _column(where: str, name: str, values, size: int) -> np.ndarray:
@@ -293,5 +419,6 @@ def _time(t: float) -> str:
     return f"{t:.6g}"
 
 
-__all__ = ["INPUT_FRACTION", "REST_HINT", "REST_SPAN", "RestBand", "find_rest", "rest_band",
-           "rest_bands", "rest_tolerance", "spread_within", "why_not_at_rest"]
+__all__ = ["INPUT_FRACTION", "REST_HINT", "REST_KEY", "REST_SPAN", "RestBand", "find_rest",
+           "rest_band", "rest_bands", "rest_note", "rest_stretch", "rest_tolerance",
+           "spread_within", "stated_rest", "why_not_at_rest"]

@@ -4,7 +4,7 @@ Every command works on one rig (:class:`~jaxflex.model.Model`): ``--arm`` names 
 a packaged rig; without it, the reference testbed; a command given a fit works on the rig the
 fit carries whole (a later ``--arm`` must name the same rig). :func:`rig_of` finds it,
 :func:`ready_records` makes records as the rig logged them ready for its model (each cut to
-``--window`` (per record or for all, ``auto`` at the last rest before the motion;
+``--window`` (per record or for all, ``auto`` at the rest before the first motion;
 :mod:`jaxflex.cli._windows`), its sensors re-zeroed at rest; :mod:`jaxflex.measured`) and
 :func:`rig_settings` is what a result records of where its rig came from.
 """
@@ -86,12 +86,16 @@ def with_effects(model: Model, names: list[str], option: str = "--effect") -> Mo
 
 def windows_of(args: argparse.Namespace, model: Model, records) -> list[Window]:
     """Each record's window from ``--window`` (checked against the record; ``auto`` found from
-    the rig's sensors' rest bands), in the records' order."""
+    the rig's sensors' rest bands over a span of its link's lowest period,
+    :func:`jaxflex.measured.rest_span`), in the records' order."""
     from jaxflex.cli._windows import parse_windows, resolve_window
+    from jaxflex.measured import rest_span
     from jaxflex.rest import rest_bands
 
     given = parse_windows(getattr(args, "window", None), [r.name for r in records])
-    return [resolve_window(given.get(r.name), r, rest_bands(model.sensors, r)) for r in records]
+    span = rest_span(model) if any(w is not None and w.auto for w in given.values()) else None
+    return [resolve_window(given.get(r.name), r, rest_bands(model.sensors, r), span)
+            for r in records]
 
 
 def ready_records(model: Model, records, windows: list[Window], *, say: bool = True,

@@ -7,8 +7,9 @@ Forms (times in seconds, in each record's own time; a record's name is its file'
   the whole record;
 * ``NAME=T0:T1`` (and ``NAME=T0:``, ``NAME=:T1``, ``NAME=:``) — the record ``NAME`` only; it
   overrides a window given for every record;
-* ``auto``, ``NAME=auto`` — from where the record last rests before it moves
-  (:func:`jaxflex.rest.find_rest`) to its end.
+* ``auto``, ``NAME=auto`` — from the end of the rest before the record's first motion
+  (:func:`jaxflex.rest.find_rest`, over a span of the link's lowest period,
+  :func:`jaxflex.measured.rest_span`) to its end.
 
 A command adds the option with :func:`add_windows_argument` and then needs only::
 
@@ -63,7 +64,8 @@ def add_windows_argument(p: argparse.ArgumentParser) -> None:
         "--window", action="append", metavar="[NAME=]T0:T1",
         help="use only T0 <= t <= T1 (s, in the records' own time) of every record, or of the "
              "record NAME (its file's stem); T0: runs to the record's end, :T1 from its start; "
-             "auto starts where the record last rests before it moves; once per record",
+             "auto starts at the end of the rest before the record's first motion (still for "
+             "a period of the link's lowest mode); once per record",
     )
 
 
@@ -132,8 +134,11 @@ def resolve_window(
     """The ``(t0, t1)`` to cut ``record`` to (None: all of it): ``window`` checked against the
     record (:func:`check_window`), or, for ``auto``, from the rest that ``bands`` (rest
     tolerances by channel, :func:`jaxflex.rest.rest_bands`) and ``span`` (default
-    :data:`jaxflex.rest.REST_SPAN`) find, to its end."""
-    from jaxflex.rest import REST_SPAN, find_rest
+    :data:`jaxflex.rest.REST_SPAN`) find, to its end; the rest the record's header states
+    counts (:func:`jaxflex.rest.stated_rest`), and a record still from its first sample for
+    less than ``span`` (all it holds before it moves) is taken from that rest where it lasts
+    :data:`jaxflex.rest.REST_SPAN`."""
+    from jaxflex.rest import REST_SPAN, find_rest, stated_rest
 
     if window is None:
         return None
@@ -144,7 +149,7 @@ def resolve_window(
         t0 = find_rest(
             record.time, {c: record.channel(c) for c in bands}, bands,
             record.channel(record.input_name), REST_SPAN if span is None else span,
-            name=record.name,
+            name=record.name, rested=stated_rest(record), opening=REST_SPAN,
         )
     except ValueError as err:
         message = str(err).replace("window=(t0, t1)", f"--window {_echo(record.name)}=T0:T1")

@@ -180,6 +180,7 @@ def simulate_logged(args: argparse.Namespace, arm, out, plot) -> int:
     from jaxflex.cli._arm import with_effects
     from jaxflex.data import save_record
     from jaxflex.measured import logged_record
+    from jaxflex.rest import REST_KEY, rest_note
     from jaxflex.signals import EXCITATION_AMPLITUDES, REFERENCE_AMPLITUDES, reference_input
     from jaxflex.testbed import TESTBED_SETTINGS
 
@@ -215,6 +216,7 @@ def simulate_logged(args: argparse.Namespace, arm, out, plot) -> int:
         "input": f"{args.input}, {arm.drive.name} ({arm.drive.unit}), after "
                  f"{n_rest * args.dt:g} s at rest",
         "parameters": ", ".join(f"{k}={float(v)!r}" for k, v in params.items()),
+        REST_KEY: rest_note(float(time[0]), float(time[n_rest])),
         "effects": ", ".join(model.effect_names) or "none",
         "noise": f"each sensor's noise and quantisation, seed {args.seed}" if args.add_noise
         else "none",
