@@ -130,7 +130,9 @@ class RecordComparison:
 
     name: str
     role: str  # "fit" or "held-out"
-    nrmse: dict[str, float]  # per output, percent (NaN if the measured output is all zero)
+    # per output the record logs (one it does not log has no entry): percent, NaN if the
+    # measured output is zero throughout (no motion: see rms_error)
+    nrmse: dict[str, float]
     relative_error: dict[str, float]  # per output, fraction (likewise)
     frf_nrmse: float  # percent, compared bins only (NaN if none)
     frf_nrmse_raw: float  # percent, every bin of the band (NaN if one is not finite)
@@ -139,6 +141,8 @@ class RecordComparison:
     measured_peaks_hz: tuple[float, ...]  # prominent maxima of |H_measured| (compared bins)
     model_peaks_hz: tuple[float, ...]  # the same for |H_model|
     frf: FRF = field(repr=False)
+    rms_error: dict[str, float] = field(default_factory=dict)  # per output, in its own unit
+    still: tuple[str, ...] = ()  # outputs measured zero throughout (no motion): NRMSE NaN
 
     def to_dict(self) -> dict[str, Any]:
         """Plain JSON-ready values (FRF arrays left out)."""
@@ -154,6 +158,8 @@ class RecordComparison:
             "noise_floor_percent": dict(self.noise_floor),
             "measured_frf_peaks_hz": list(self.measured_peaks_hz),
             "model_frf_peaks_hz": list(self.model_peaks_hz),
+            "rms_error": dict(self.rms_error),
+            "no_motion": list(self.still),
         }
 
 
@@ -210,14 +216,12 @@ class Comparison:
 
     def mean(self, metric: str = "nrmse", role: str | None = "held-out") -> dict[str, float]:
         """Mean of a per-output metric ('nrmse' or 'relative_error') over the records of a role
-        (``None``: all records); NaN where no record has that role."""
+        (``None``: all records) that log the output; NaN where none does."""
         if metric not in ("nrmse", "relative_error"):
             raise ValueError(f"metric={metric!r} must be 'nrmse' or 'relative_error'")
         rows = [r for r in self.rows if role is None or r.role == role]
-        return {
-            o: float(np.mean([getattr(r, metric)[o] for r in rows])) if rows else math.nan
-            for o in self.channels
-        }
+        values = {o: [getattr(r, metric)[o] for r in rows if o in r.nrmse] for o in self.channels}
+        return {o: float(np.mean(v)) if v else math.nan for o, v in values.items()}
 
     def table(self) -> str:
         """The Table-3-style text table: one row per record, then notes on the definitions."""
@@ -328,8 +332,13 @@ def compare(
     channels = fitted_channels(dataset, model) if channels is None else check_channels(
         channels, model)
     for c in channels:
-        for record in dataset:
-            record.channel(c)  # a KeyError naming the record, the channel and its columns
+        if not any(c in r.columns for r in dataset):
+            dataset[0].channel(c)  # a KeyError naming the record, the channel and its columns
+    logged = [tuple(c for c in channels if c in r.columns) for r in dataset]
+    for record, own in zip(dataset, logged, strict=True):
+        if not own:
+            raise ValueError(f"record {record.name!r} logs none of the compared channels "
+                             f"{list(channels)}; its columns are {list(record.columns)}")
     link = link_channel(model, channels)
     sigma = {s.channel: s.noise_std for s in model.sensors
              if s.noise_std > 0 and s.channel in channels}
@@ -338,13 +347,14 @@ def compare(
     outputs = simulate_started(model, values, dataset, channels, initial_state, initial_modes,
                                initial_states)
     rows, simulated = [], []
-    for record, out in zip(dataset, outputs, strict=True):
+    for record, out, own in zip(dataset, outputs, logged, strict=True):
         role = "fit" if record.name in fit_names else "held-out"
         row = compare_record(record, out, role, t_end, settings, encoder_counts, accel_sigma,
-                             channels, link)
+                             own, link)
         if sigma:
             window = _time_window(record, t_end)
-            floor = {c: _percent_of_rms(s, record.channel(c)[window]) for c, s in sigma.items()}
+            floor = {c: _percent_of_rms(s, record.channel(c)[window])
+                     for c, s in sigma.items() if c in own}
             row = dataclasses.replace(row, noise_floor=row.noise_floor | floor)
         rows.append(row)
         simulated.append(out)
@@ -481,22 +491,32 @@ def compare_record(
     link: str | None = None,
 ) -> RecordComparison:
     """The model's outputs ``out`` against one record in the role ``role`` (``"fit"`` or
-    ``"held-out"``): NRMSE and relative error per output (``outputs``, the ones the record
-    measures) over the first ``t_end`` seconds, the FRFs from the torque to the first link
-    output (:data:`~jaxflex.diagnosis.frf.LINK_OUTPUTS`) under ``settings``, and the noise floor
-    of the given sensor noise (``None``: unknown). One row of :class:`Comparison`; discovery
-    scores its steps with it too."""
+    ``"held-out"``): NRMSE, relative error and RMS error (in the output's unit) per output of
+    ``outputs`` that the record logs (the others are left out) over the first ``t_end``
+    seconds, the FRFs from the torque to the first link output
+    (:data:`~jaxflex.diagnosis.frf.LINK_OUTPUTS`, or ``link``; none where the record does not
+    log it) under ``settings``, and the noise floor of the given sensor noise (``None``:
+    unknown). An output measured zero throughout (no motion) has no NRMSE (NaN, with a
+    warning): its RMS error says how far the model moved. One row of :class:`Comparison`;
+    discovery scores its steps with it too."""
     window = _time_window(record, t_end)
-    errors, relative = {}, {}
+    outputs = [o for o in outputs if o in record.columns]
+    if not outputs:
+        raise ValueError(f"record {record.name!r} logs none of the outputs compared; its "
+                         f"columns are {list(record.columns)}")
+    errors, relative, rms, still = {}, {}, {}, []
     for name in outputs:
         measured, simulated = record.channel(name)[window], np.asarray(out.channel(name))[window]
+        rms[name] = float(np.sqrt(np.mean(np.square(simulated - measured))))
         if not np.any(measured):  # e.g. an input too weak to break the joint free
             warnings.warn(
-                f"record {record.name!r}: measured {name} is zero throughout the time window; "
-                "its NRMSE and relative error are undefined (NaN)",
+                f"record {record.name!r}: measured {name} is zero throughout the time window "
+                f"(no motion); its NRMSE and relative error are undefined (NaN), its RMS error "
+                f"is {rms[name]:.3g}",
                 stacklevel=3,
             )
             errors[name] = relative[name] = math.nan
+            still.append(name)
             continue
         errors[name] = nrmse(measured, simulated)
         relative[name] = relative_error(measured, simulated)
@@ -521,16 +541,24 @@ def compare_record(
         measured_peaks_hz=_peaks(frf.freqs, magnitude, frf.compared),
         model_peaks_hz=_peaks(frf.freqs, np.abs(frf.model), frf.compared),
         frf=frf,
+        rms_error=rms,
+        still=tuple(still),
     )
 
 
 def _frf(record: Record, simulated: np.ndarray, settings: FRFSettings,
          output: str = "tip_acceleration") -> FRF:
-    """H1 FRFs torque → ``output``, measured and simulated, and the bins to compare."""
+    """H1 FRFs torque → ``output``, measured and simulated, and the bins to compare; none
+    (NaN, no bin compared) where the record does not log ``output`` or it does not move."""
     kw = {"nperseg": settings.nperseg, "window": settings.window}
     fs = record.sample_rate
-    freqs, measured, coherence = h1_frf(record.input, record.channel(output), fs, **kw)
+    logged = output in record.columns
+    reading = record.channel(output) if logged else simulated
+    freqs, measured, coherence = h1_frf(record.input, reading, fs, **kw)
     _, model, _ = h1_frf(record.input, simulated, fs, **kw)
+    if not (logged and np.any(np.abs(measured[np.isfinite(measured)]) > 0)):
+        measured = np.full_like(measured, np.nan)
+        coherence = np.full_like(coherence, np.nan)
     band = (freqs > 0) & (freqs <= settings.f_max)
     compared = band & np.isfinite(measured) & np.isfinite(model)
     if settings.single_segment and settings.min_input_db is not None:
@@ -614,7 +642,10 @@ def _time_window(record: Record, t_end: float | None) -> np.ndarray:
 
 
 def _percent_of_rms(noise_rms: float, measured: np.ndarray) -> float:
-    return 100.0 * noise_rms / float(np.sqrt(np.mean(np.square(measured))))
+    """``noise_rms`` in percent of the RMS of ``measured``; NaN where that is zero (no motion:
+    no percentage of it is defined)."""
+    rms = float(np.sqrt(np.mean(np.square(measured))))
+    return 100.0 * noise_rms / rms if rms > 0 else math.nan
 
 
 # --- the table ----------------------------------------------------------------------------------
@@ -632,10 +663,10 @@ def _format_table(c: Comparison) -> str:
     lines = []
     for r in c.rows:
         cells = [r.name, r.role]
-        cells += [_number(r.nrmse[o]) for o in c.channels]
+        cells += [_channel_cell(r, o, r.nrmse, _number) for o in c.channels]
         cells += [_number(r.frf_nrmse), _number(r.frf_nrmse_raw)]
         cells.append(f"{r.frf_bins[0]}/{r.frf_bins[1]}")
-        cells += [_scientific(r.relative_error[o]) for o in c.channels]
+        cells += [_channel_cell(r, o, r.relative_error, _scientific) for o in c.channels]
         if show_floor:
             keys = (*c.channels, "frf")
             cells += [_number(r.noise_floor[k]) if k in r.noise_floor else "-" for k in keys]
@@ -658,6 +689,7 @@ def _format_table(c: Comparison) -> str:
     if show_floor:
         noise = ", ".join(f"{k} {v:g}" for k, v in c.noise.items())
         notes.append(f"floor = the NRMSE the sensor noise alone gives ({noise}).")
+    notes += _channel_notes(c)
     if c.resonances_hz:
         shown = [f"{f:.2f}" for f in c.resonances_hz if f <= c.frf_settings.f_max] or [
             f"{c.resonances_hz[0]:.2f}"
@@ -666,6 +698,29 @@ def _format_table(c: Comparison) -> str:
     rule = "-" * len(fmt(header))
     notes = [textwrap.fill(n, 100, subsequent_indent="  ") for n in notes]
     return "\n".join([fmt(header), rule, *map(fmt, lines), rule, *notes]) + "\n"
+
+
+def _channel_cell(row: RecordComparison, channel: str, values: Mapping[str, float],
+                  number) -> str:
+    """A channel's metric in the table: '-' where the record does not log the channel, 'no
+    motion' where it is zero throughout (no NRMSE is defined: see the notes)."""
+    if channel not in values:
+        return "-"
+    return "no motion" if channel in row.still else number(values[channel])
+
+
+def _channel_notes(c: Comparison) -> list[str]:
+    """The notes that the channel cells '-' and 'no motion' need: which is which, and the
+    model's RMS error, in the channel's unit, where a channel does not move."""
+    notes = []
+    if any(o not in r.nrmse for r in c.rows for o in c.channels):
+        notes.append("-: the record does not log that channel; it is not compared there.")
+    still = [f"{r.name} {o} {r.rms_error[o]:.3g} {c.units.get(o) or ''}".rstrip()
+             for r in c.rows for o in r.still]
+    if still:
+        notes.append("no motion: the measured channel is zero throughout, so no NRMSE is "
+                     f"defined; the model's RMS error there: {', '.join(still)}.")
+    return notes
 
 
 def _scientific(x: float) -> str:

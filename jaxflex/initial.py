@@ -370,14 +370,15 @@ def simulate_started(model: Model, params: Mapping[str, float], records, channel
                      ) -> tuple[Outputs, ...]:
     """Each record's readings at ``params`` from where it starts: its coordinates in
     ``states`` where given, else its own estimated or periodic state under ``option`` (over
-    ``channels``), else rest."""
+    those of ``channels`` it logs), else rest."""
     from jaxflex.simulation import simulate_readings
 
     states = {k: np.asarray(v, dtype=float) for k, v in (states or {}).items()}
     if option != "rest":
         for record in records:
             if record.name not in states:
-                states |= record_states(model, params, [record], channels, option, modes)
+                own = [c for c in channels if c in record.columns]
+                states |= record_states(model, params, [record], own, option, modes)
     return tuple(
         simulate_record(model, params, r, states[r.name]) if r.name in states
         else simulate_readings(model, params, r.input, dt=r.dt)

@@ -248,8 +248,11 @@ def uncertainty(
     r, jac = np.asarray(r), np.asarray(jac)
     if not (np.all(np.isfinite(r)) and np.all(np.isfinite(jac))):
         raise ValueError("uncertainty: the simulation is not finite at the estimate")
+    # a channel a record does not log adds zeros of scale 0: leave them out
+    observed = objective.observed()
+    r, jac = r[observed], jac[observed]
     n_res, d = jac.shape
-    record, channel, scale = objective.layout()
+    record, channel, scale = (a[observed] for a in objective.layout())
 
     # per-channel noise level (channel units), then the sandwich A⁻¹ M A⁻¹
     dof = n_res / max(n_res - d, 1)

@@ -18,11 +18,13 @@ reference format) as they are, cut to the window.
 
 from __future__ import annotations
 
+import math
+import warnings
 from collections.abc import Mapping, Sequence
 
 import numpy as np
 
-from jaxflex.data import Record
+from jaxflex.data import OUTPUT_COLUMNS, Record
 from jaxflex.metrics import nrmse
 from jaxflex.model import Model
 from jaxflex.noise import NoiseLevel
@@ -42,7 +44,7 @@ from jaxflex.sensors import (
     calibrated,
     readings,
 )
-from jaxflex.simulation import simulate
+from jaxflex.simulation import OUTPUT_NAMES, simulate
 
 Window = tuple[float, float] | None
 """``(t0, t1)`` in a record's own time (seconds), or None for the whole record."""
@@ -140,6 +142,35 @@ def rest_span(model: Model) -> float:
     return max(REST_SPAN, 2.0 * np.pi / np.sqrt(lowest)) if lowest > 0 else REST_SPAN
 
 
+def channel_notes(model: Model, records: Sequence[Record]) -> list[str]:
+    """One line for each record that does not log every channel the rig reads (the rig's
+    sensor channels; for a rig without sensors, the reference format's
+    :data:`~jaxflex.records.OUTPUT_COLUMNS`): only those it logs are used from it; and one for
+    each record holding a column the rig reads nothing from (no sensor of the rig, or for a rig
+    without sensors no simulator output), which is ignored. Nothing for records that log just
+    what the rig reads."""
+    used = fitted_channels(records, model)
+    candidates = model.channels or OUTPUT_COLUMNS
+    known = {"time", *candidates, *used, *(() if model.sensors else OUTPUT_NAMES)}
+    notes = []
+    for record in records:
+        missing = [c for c in candidates if c not in record.columns]
+        own = [c for c in used if c in record.columns]
+        if missing and own:
+            what = "a channel" if len(missing) == 1 else "channels"
+            notes.append(f"record {record.name!r} does not log {', '.join(missing)}, {what} of "
+                         f"rig {model.name!r}: only {', '.join(own)} is used from it")
+        ignored = [c for c in record.columns if c not in known and c != record.input_name]
+        if ignored:
+            what = "column {} is" if len(ignored) == 1 else "columns {} are"
+            where = (f"no sensor channel of rig {model.name!r} ({', '.join(model.channels)})"
+                     if model.sensors else
+                     f"no output jaxflex simulates ({', '.join(OUTPUT_NAMES)})")
+            notes.append(f"record {record.name!r}: {what.format(', '.join(ignored))} {where}: "
+                         "ignored")
+    return notes
+
+
 MAX_STRAIN = 0.01
 """A bending strain above 1 % is not an elastic link's (steel yields near 0.2 %): µε or %."""
 MAX_DEFLECTION_ANGLE = 1.0
@@ -203,16 +234,36 @@ def validate(
     """NRMSE (percent) of each channel the rig fits in each record, simulated at ``params``.
 
     Records are taken as they come (each cut to its window and re-zeroed at rest, as in
-    :func:`model_record`); the whole record (or window) is scored.
+    :func:`model_record`); the whole record (or window) is scored. A channel that does not move
+    in a record (zero throughout) has no NRMSE: NaN, with a warning that gives the RMS error in
+    its unit.
     """
     check_records(records, "validate")
     scores: dict[str, dict[str, float]] = {}
     for ready in prepare(model, records, windows):
         out = calibrated(model, dict(params), simulate(model, dict(params), ready.input, ready.dt))
-        scores[ready.name] = {
-            c: nrmse(ready.channel(c), out.channel(c)) for c in fitted_channels([ready], model)
-        }
+        scores[ready.name] = {c: _score(ready, c, np.asarray(out.channel(c)))
+                              for c in fitted_channels([ready], model)}
     return scores
+
+
+def _score(record: Record, channel: str, simulated: np.ndarray) -> float:
+    """NRMSE (percent) of ``simulated`` against the record's ``channel``; NaN, with a warning
+    giving the RMS error, where the channel is zero throughout (no motion)."""
+    measured = record.channel(channel)
+    if np.any(measured):
+        return nrmse(measured, simulated)
+    rms = float(np.sqrt(np.mean(np.square(simulated - measured))))
+    warnings.warn(f"record {record.name!r}: {channel} is zero throughout (no motion); its NRMSE "
+                  f"is undefined (NaN), its RMS error is {rms:.3g}", stacklevel=3)
+    return math.nan
+
+
+def logged_units(model: Model) -> dict[str, str]:
+    """The unit of each column the rig logs: its drive's input and every sensor's channel (for
+    the ``# units =`` line of its records: :func:`jaxflex.record_files.save_record`)."""
+    return {model.drive.name: model.drive.unit} | {s.channel: s.channel_unit
+                                                    for s in model.sensors}
 
 
 def logged_record(
@@ -242,5 +293,5 @@ def logged_record(
                                metadata={"rig": model.name} | dict(metadata or {}))
 
 
-__all__ = ["REST_SPAN", "fit_noise", "logged_record", "logged_sensors", "model_record",
-           "prepare", "rest_span", "validate"]
+__all__ = ["REST_SPAN", "channel_notes", "fit_noise", "logged_record", "logged_sensors",
+           "logged_units", "model_record", "prepare", "rest_span", "validate"]

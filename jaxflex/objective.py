@@ -1,13 +1,16 @@
 """The identification objective: weighted least squares between simulated and measured outputs.
 
 For records ``r = 1..R`` with ``n_r`` samples and output channels ``c`` (joint angle, tip
-acceleration) with weights ``w_c`` (``W = Σ_c w_c``), the residual vector stacks
+acceleration) with weights ``w_c`` (``W_r = Σ_c w_c`` over the channels record ``r`` logs), the
+residual vector stacks
 
-    e_rct = s_rc · (ŷ_rc(t; θ) − y_rc(t)),      s_rc = √(w_c / (W·R·n_r)) / rms(y_rc),
+    e_rct = s_rc · (ŷ_rc(t; θ) − y_rc(t)),      s_rc = √(w_c / (W_r·R·n_r)) / rms(y_rc),
 
 so the cost ``Σ e²`` is the weighted mean over records and channels of the squared normalised
 RMS error (``NRMSE²``, as a fraction): every channel counts in proportion to its weight whatever
-its unit, and every record counts the same whatever its length. Weights can instead follow the
+its unit, and every record counts the same whatever its length and whichever of the channels
+it logs (a channel a record does not log adds zeros with ``s_rc = 0``: :meth:`Objective.
+observed`). Weights can instead follow the
 channels' measurement noise ``σ_c`` (:func:`noise_weights`): ``w_c = mean_r ms(y_rc)/σ_c²``, the
 signal-to-noise power: on one record ``e`` is then ``(ŷ − y)/σ_c`` up to one common factor.
 The residual vector (for least squares) and the scalar cost (for the evolutionary search)
@@ -252,7 +255,8 @@ class Objective(eqx.Module):
 
     # --- layout (NumPy, for noise estimates and reports) ------------------------------------
     def layout(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """Per residual element: record index, channel index and its scale ``s_rc``."""
+        """Per residual element: record index, channel index and its scale ``s_rc`` (0 where
+        the record does not log the channel: :meth:`observed`)."""
         records, channels, scales = [], [], []
         for group, measured, scale in zip(self.groups, self.measured, self.scale, strict=True):
             r, c, n = measured.shape
@@ -262,6 +266,12 @@ class Objective(eqx.Module):
             channels.append(idx_c.reshape(-1))
             scales.append(np.broadcast_to(np.asarray(scale)[..., None], (r, c, n)).reshape(-1))
         return np.concatenate(records), np.concatenate(channels), np.concatenate(scales)
+
+    def observed(self) -> np.ndarray:
+        """Per residual element, whether it is measured: a record that does not log a fitted
+        channel holds zeros for it, with scale 0, so those elements are always 0 and carry no
+        information (noise levels and degrees of freedom count only the observed ones)."""
+        return self.layout()[2] > 0
 
 
 def check_channels(
@@ -448,6 +458,18 @@ def _check_held(spec: ParameterSpec, value: float) -> None:
     )
 
 
+def logged_weight(record: Record, channels: Sequence[str], weights: Sequence[float]) -> float:
+    """``W_r``, the weight of the fitted ``channels`` that ``record`` logs (module doc); a record
+    that logs none of them (or only channels of weight 0) is refused, naming it."""
+    total = sum(w for c, w in zip(channels, weights, strict=True) if c in record.columns)
+    if not total > 0:
+        raise ValueError(
+            f"record {record.name!r} logs none of the fitted channels {list(channels)}; its "
+            f"columns are {list(record.columns)}"
+        )
+    return total
+
+
 def build_objective(
     records: Records,
     model: Model | None = None,
@@ -466,7 +488,8 @@ def build_objective(
     and the weights follow from it (:func:`noise_weights`); ``fixed`` maps parameter → value held
     fixed (besides the rig's own fixed parameters, unless ``bounds`` frees one); ``bounds`` maps
     parameter → ``(lower, upper)`` replacing its search bounds. ``channels`` defaults to
-    :func:`fitted_channels`; a record that lacks a fitted channel adds no residual for it.
+    :func:`fitted_channels`; a record that lacks a fitted channel adds no residual for it, and
+    its other channels share its weight (module doc).
     Channels of weight 0 are left out of the objective altogether. ``initial_state`` says where
     each record starts: ``"rest"``, ``"estimate"`` (its state estimated with the parameters) or
     ``"periodic"`` (the cyclic steady state of its periodic input), the latter two setting the
@@ -504,7 +527,6 @@ def build_objective(
     periods = [input_period(r) if initial_state == "periodic" else 0 for r in dataset]
 
     n_records = len(dataset)
-    total = sum(weight_values)
     lengths: dict[tuple[int, int], list[int]] = {}  # records of one length (and period)
     for i, record in enumerate(dataset):
         lengths.setdefault((record.n_samples, periods[i]), []).append(i)
@@ -513,6 +535,7 @@ def build_objective(
         ys, ss = [], []
         for i in members:
             record = dataset[i]
+            total = logged_weight(record, channels, weight_values)
             row, srow = [], []
             for c, w in zip(channels, weight_values, strict=True):
                 if c not in record.columns:  # not logged here: no residual
@@ -553,4 +576,4 @@ def build_objective(
 
 __all__ = ["Objective", "as_dataset", "build_objective", "check_channels",
            "check_inputs", "check_records", "check_weights", "fitted_channels", "free_specs",
-           "held_fixed", "noise_weights", "per_record", "record_tuple"]
+           "held_fixed", "logged_weight", "noise_weights", "per_record", "record_tuple"]

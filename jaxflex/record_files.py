@@ -13,7 +13,7 @@ import os
 import re
 import warnings
 import zipfile
-from collections.abc import Iterable, Sequence
+from collections.abc import Iterable, Mapping, Sequence
 from pathlib import Path
 
 import numpy as np
@@ -127,16 +127,28 @@ def load_dataset(
                    for p in files)
 
 
-def save_record(record: Record, path: str | os.PathLike, *, overwrite: bool = False) -> Path:
+def save_record(record: Record, path: str | os.PathLike, *, overwrite: bool = False,
+                units: Mapping[str, str] | None = None) -> Path:
     """Write ``record`` as spec CSV (or NPZ for a ``.npz`` path), atomically.
 
-    Metadata become ``# key: value`` comments; numbers are written with ``repr`` (the shortest
-    text that reads back to the same float64), so a save/load round trip is exact. An existing
-    file is refused (:class:`~jaxflex._io.OutputExistsError`) unless ``overwrite=True``.
+    The first line names each column's unit (``# units = time s, ...``): the ones jaxflex knows
+    (:attr:`~jaxflex.records.Record.units`), with ``units`` (column → unit) giving or replacing
+    those of other columns, e.g. a rig's sensor channels
+    (:func:`jaxflex.measured.logged_units`); a column whose unit is known from neither is left
+    out of it. Metadata become ``# key: value`` comments; numbers are written with ``repr`` (the
+    shortest text that reads back to the same float64), so a save/load round trip is exact. An
+    existing file is refused (:class:`~jaxflex._io.OutputExistsError`) unless
+    ``overwrite=True``.
     """
     if _suffix(Path(path)) == ".npz":
         return save_npz(record, path, overwrite=overwrite)
-    lines = [f"# units = {', '.join(f'{c} {u}' for c, u in record.units.items() if u)}"]
+    given = dict(units or {})
+    unknown = sorted(set(given) - set(record.columns))
+    if unknown:
+        raise ValueError(f"units given for column(s) {unknown} that record {record.name!r} does "
+                         f"not hold; its columns are {list(record.columns)}")
+    named = {c: given.get(c) or u for c, u in record.units.items()}
+    lines = [f"# units = {', '.join(f'{c} {u}' for c, u in named.items() if u)}"]
     lines += [f"# {k}: {v}" for k, v in record.metadata.items()]
     lines.append(",".join(record.columns))
     table = np.column_stack(list(record.to_dict().values()))

@@ -103,17 +103,20 @@ def ready_records(model: Model, records, windows: list[Window], *, say: bool = T
     """Records as the rig logged them, made ready for its model, each cut to its window
     (:func:`jaxflex.measured.prepare`; not ``at_rest``: records that start in motion), with
     command-line errors; for a rig with sensors, one line per record says which of them it
-    holds (unless not ``say``)."""
-    from jaxflex.measured import logged_sensors, prepare
+    holds, and for every rig a warning says which of its channels a record does not log and
+    which of its columns are ignored (unless not ``say``)."""
+    import warnings
+
+    from jaxflex.measured import channel_notes, logged_sensors, prepare
 
     ready = _speaking_cli(prepare, model, list(records), windows, at_rest=at_rest)
     for record, window in zip(records, windows, strict=True) if model.sensors and say else ():
         found = logged_sensors(model, record)
-        missing = [c for c in model.channels if c not in record.columns]
         cut = "" if window is None else f", {window[0]:g} to {window[1]:g} s"
         print(f"{record.name}{cut}: {record.input_name} in; "
-              + ", ".join(f"{s.channel} ({s.kind}, {s.channel_unit or '-'})" for s in found)
-              + (f"; not logged: {', '.join(missing)}" if missing else ""))
+              + ", ".join(f"{s.channel} ({s.kind}, {s.channel_unit or '-'})" for s in found))
+    for note in _speaking_cli(channel_notes, model, list(records)) if say else ():
+        warnings.warn(note, stacklevel=2)
     return ready
 
 

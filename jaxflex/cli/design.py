@@ -169,9 +169,9 @@ def run(args: argparse.Namespace) -> int:
         paper_inputs(rms, duration=args.duration, dt=float(result.settings["dt"])),
         model, names=names,
     )
-    record = result.to_record(out.stem or "designed")
+    record, units = result.to_record(out.stem or "designed"), None
     if model.sensors:  # the record the rig would log
-        from jaxflex.measured import logged_record
+        from jaxflex.measured import logged_record, logged_units
 
         note = {"note": record.metadata["note"].replace(
             "joint_angle and tip_acceleration are", "the sensor channels are"
@@ -179,8 +179,9 @@ def run(args: argparse.Namespace) -> int:
         record = logged_record(model, result.nominal, result.time, result.torque,
                                name=record.name,
                                metadata=record.metadata | note | {"rig": model.name})
+        units = logged_units(model)
     with all_or_nothing():
-        save_record(record, out, overwrite=args.overwrite)
+        save_record(record, out, overwrite=args.overwrite, units=units)
         if args.plot:
             from jaxflex.plots._style import save_figure
             from jaxflex.plots.design import plot_design

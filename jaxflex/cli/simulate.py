@@ -179,7 +179,7 @@ def simulate_logged(args: argparse.Namespace, arm, out, plot) -> int:
     from jaxflex._io import all_or_nothing
     from jaxflex.cli._arm import with_effects
     from jaxflex.data import save_record
-    from jaxflex.measured import logged_record
+    from jaxflex.measured import logged_record, logged_units
     from jaxflex.rest import REST_KEY, rest_note
     from jaxflex.signals import EXCITATION_AMPLITUDES, REFERENCE_AMPLITUDES, reference_input
     from jaxflex.testbed import TESTBED_SETTINGS
@@ -225,7 +225,7 @@ def simulate_logged(args: argparse.Namespace, arm, out, plot) -> int:
                            seed=args.seed if args.add_noise else None, name=args.input,
                            metadata=metadata)
     with all_or_nothing():
-        save_record(record, out, overwrite=args.overwrite)
+        save_record(record, out, overwrite=args.overwrite, units=logged_units(model))
         if plot:
             from jaxflex.comparison import channel_units
             from jaxflex.plots._style import save_figure
