@@ -134,6 +134,11 @@ class Model(eqx.Module):
                     f"rig {self.name!r}: sensor {s.channel} at x = {s.position!r} m lies beyond "
                     f"the link (length {self.testbed.length!r} m)"
                 )
+            if s.position == 0.0 and s.silent_at_clamp(self.testbed.clamp_offset):
+                raise ValueError(
+                    f"rig {self.name!r}: sensor {s.channel} at x = 0 sits at the clamp, where "
+                    "it reads zero; give its distance from the clamp, x (m)"
+                )
         for c in channels:
             if c == "time" or c == self.drive.name:
                 what = "time" if c == "time" else f"the {self.drive.name} drive's input"
