@@ -32,6 +32,9 @@ REFERENCE_DESCRIPTION = (
     "reference testbed: 0.5 m aluminium strip, torque drive, joint angle and tip acceleration"
 )
 """The reference testbed's description (``Model().description``)."""
+BREAKAWAY_SPEED = 1e-9
+"""Joint speed (rad/s) at which :meth:`Model.breakaway_torque` reads the friction: far below
+any motion an encoder sees, so viscous friction adds nothing and a static excess is whole."""
 
 
 class Model(eqx.Module):
@@ -243,6 +246,16 @@ class Model(eqx.Module):
         if self.drive.damping:
             torque = torque + self.drive.damping * velocity
         return torque
+
+    def breakaway_torque(self, params: Params) -> float:
+        """The hub torque (N m) that the joint's friction holds at rest: the friction just above
+        zero speed without its smoothing (``tau_c``, plus any static excess such as a Stribeck
+        ``delta_tau_s``). An input whose torque never exceeds it leaves the hub still."""
+        velocity, omega_s = jnp.asarray(BREAKAWAY_SPEED), BREAKAWAY_SPEED * 1e-3
+        torque = joint_friction(params, velocity, omega_s)
+        for effect in self.effects:
+            torque = torque + effect.friction(params, velocity, omega_s)
+        return float(torque)
 
     def loads(self, structure: Structure, params: Params) -> Array:
         """Stacked shapes of all position-dependent loads, ``(k, n)``."""
