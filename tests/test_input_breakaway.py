@@ -28,8 +28,8 @@ n_elements = 4
 duration = 1.0
 [parameters]
 E = { reference = 7e10, fixed = true }
-J_h = { reference = 0.003, fixed = true }
-b_v = { reference = 0.004, fixed = true }
+J_h = { reference = 0.003, lower = 0.001, upper = 0.01 }
+b_v = { reference = 0.004, lower = 1e-4, upper = 0.02 }
 tau_c = { reference = 0.15, fixed = true }
 alpha = { reference = 1.0, fixed = true }
 beta = { reference = 5e-5, fixed = true }
@@ -128,3 +128,18 @@ def test_a_small_command_or_a_low_saturation_is_said_on_a_rig_driven_in_counts(
     assert np.max(np.abs(record.channel("command"))) == pytest.approx(40.0, rel=1e-6)
     assert ("warning: input 'chirp' peaks at 0.1 N m at the hub, which never exceeds the "
             "joint's breakaway friction torque 0.15 N m") in capsys.readouterr().err
+
+
+def test_a_design_whose_peak_torque_cannot_move_the_hub_is_refused_at_once(tmp_path, capsys):
+    from jaxflex.design import design_input
+
+    with pytest.raises(ValueError, match=r"^max_torque=0.1 never exceeds the joint's breakaway "
+                                         r"friction torque 0.107 N m: no input within it moves"):
+        design_input(max_torque=0.1, rms_torque=0.05, max_angle=1.0, max_speed=5.0)
+    out = tmp_path / "designed.csv"
+    assert main(["design", "--arm", str(_bench(tmp_path)), "--max-torque", "40", "--max-angle",
+                 "1", "--max-speed", "5", "--out", str(out), "--quiet"]) == 2
+    assert capsys.readouterr().err == (
+        "jaxflex design: error: --max-torque 40 (0.1 N m at the hub) never exceeds the joint's "
+        "breakaway friction torque 0.15 N m: no input within it moves the hub; raise it\n")
+    assert not out.exists()
