@@ -189,7 +189,7 @@ def arm_from_dict(data: Mapping[str, Any], where: str = "arm") -> Model:
         clamp_offset=clamp_offset,
     )
     drive, drive_gain = _drive(top.table("drive"))
-    sensors, calibrations = _sensors(top, length, drive)
+    sensors, calibrations = _sensors(top, length, drive, clamp_offset)
     effects = _effects(top) + calibrations + drive_gain
     name = top.string("name")
     description = top.string("description", "")
@@ -429,11 +429,12 @@ def _command_drive(table: _Table) -> tuple[CommandDrive, tuple[DriveGain, ...]]:
 
 
 def _sensors(
-    top: _Table, length: float, drive: AbstractDrive
+    top: _Table, length: float, drive: AbstractDrive, clamp_offset: float = 0.0
 ) -> tuple[tuple[AbstractSensor, ...], tuple[AbstractEffect, ...]]:
     """The ``[[sensors]]`` tables: ``type`` picks the class, the other keys are its fields; and
     the effects that identify each gain or offset given as a table of bounds. Each sensor logs
-    its own channel, neither time nor the drive's input."""
+    its own channel, neither time nor the drive's input, and a link sensor states where it
+    sits (:func:`_check_position`)."""
     entries = top._get("sensors", [])
     if not isinstance(entries, list):
         raise top._wrong("sensors", "an array of tables ([[sensors]])", entries)
@@ -485,21 +486,34 @@ def _sensors(
             else:
                 values[f.name] = table.number(f.name, minimum=0.0)
         table.done(known=["type", *(f.name for f in dataclasses.fields(SENSORS[kind]))])
-        if values.get("x", 0.0) > length:
-            raise ArmError(
-                f"{table.where}: {table.key('x')}: {values['x']!r} m lies beyond the link "
-                f"(length {length!r} m)"
-            )
         try:
             sensors.append(SENSORS[kind](**values))
         except ValueError as err:
             raise ArmError(f"{table.where}: sensors[{i}]: {err}") from None
+        _check_position(table, sensors[-1], length, clamp_offset)
         _check_channel(table, sensors, drive)
         if bounds is not None:
             calibrations.append(_gain_effect(top.where, sensors[-1], bounds))
         if offset_bounds is not None:
             calibrations.append(_offset_effect(top.where, sensors[-1].channel, offset_bounds))
     return tuple(sensors), tuple(calibrations)
+
+
+def _check_position(table: _Table, sensor: AbstractSensor, length: float,
+                    clamp_offset: float) -> None:
+    """A link sensor states its ``x``, on the link, and not at the clamp where it reads zero
+    (:meth:`~jaxflex.sensors.AbstractSensor.silent_at_clamp`)."""
+    if sensor.position is None:
+        return
+    key, what = f"{table.where}: {table.key('x')}", f"the {sensor.kind} {sensor.channel!r}"
+    if "x" not in table.data:
+        raise ArmError(f"{key}: missing value; {what} sits on the link: give its distance from "
+                       "the clamp in m")
+    if sensor.position > length:
+        raise ArmError(f"{key}: {sensor.position!r} m lies beyond the link (length {length!r} m)")
+    if sensor.position == 0.0 and sensor.silent_at_clamp(clamp_offset):
+        raise ArmError(f"{key}: {what} at x = 0 sits at the clamp, where it reads zero; give "
+                       "its distance from the clamp in m")
 
 
 def _check_channel(table: _Table, sensors: list[AbstractSensor], drive: AbstractDrive) -> None:

@@ -49,6 +49,7 @@ from jaxtyping import Array, ArrayLike, Float
 from jaxflex._arguments import positive
 from jaxflex._progress import Progress
 from jaxflex.data import Record
+from jaxflex.drives import TorqueDrive
 from jaxflex.model import Model
 from jaxflex.noise import Noise, noise_levels
 from jaxflex.parameters import Params
@@ -407,13 +408,15 @@ def design_input(
     Limits: peak torque ``max_torque`` and RMS torque ``rms_torque`` (N m), joint angle within
     ``±max_angle`` (rad) and speed within ``max_speed`` (rad/s), checked by simulating at the
     nominal ``params`` (default: the model's reference values; the rigid estimate's values are a
-    good choice for a new arm). ``criterion`` is ``"D"`` or ``"E"`` (module doc); ``harmonics``
-    defaults to every harmonic of ``1/duration`` up to ``max_frequency`` Hz. Each start is a
-    flat-spectrum multisine with random phases (start ``r`` draws them from
-    ``numpy.random.default_rng((seed, r))``) followed by ``iterations`` ascent steps; the
-    criterion has many local optima, so ``restarts`` starts are tried and the best is kept
-    (``settings["start_values"]`` lists where each ended). ``progress`` reports the ascent of
-    each start on stderr: a bar on a terminal or in Jupyter, else a line when it ends.
+    good choice for a new arm); a peak whose torque at the hub never exceeds the rig's breakaway
+    friction (:meth:`~jaxflex.model.Model.breakaway_torque`) is refused. ``criterion`` is
+    ``"D"`` or ``"E"`` (module doc); ``harmonics`` defaults to every harmonic of
+    ``1/duration`` up to ``max_frequency`` Hz. Each start is a flat-spectrum multisine with
+    random phases (start ``r`` draws them from ``numpy.random.default_rng((seed, r))``)
+    followed by ``iterations`` ascent steps; the criterion has many local optima, so
+    ``restarts`` starts are tried and the best is kept (``settings["start_values"]`` lists
+    where each ended). ``progress`` reports the ascent of each start on stderr: a bar on a
+    terminal or in Jupyter, else a line when it ends.
     """
     model = Model() if model is None else model
     values = _nominal(model, params)
@@ -434,6 +437,7 @@ def design_input(
             f"rms_torque={rms_torque!r} exceeds max_torque={max_torque!r}; the RMS of a torque "
             "cannot exceed its peak"
         )
+    _check_moves(model, values, limits["peak_torque"])
     if harmonics is None:
         harmonics = int(math.floor(positive(max_frequency, "max_frequency") * duration + 1e-9))
     if not (isinstance(harmonics, (int, np.integer)) and 1 <= harmonics < duration / (2 * dt)):
@@ -503,6 +507,19 @@ def design_input(
         settings=settings,
         wall_time=time.perf_counter() - start,
     )
+
+
+def _check_moves(model: Model, values: Params, max_torque: float) -> None:
+    """Refuse a peak limit whose torque at the hub (through the drive, within its saturation)
+    never exceeds the breakaway friction: no input within it moves the hub."""
+    hub = abs(float(model.drive.torque(jnp.asarray(max_torque))))
+    breakaway = model.breakaway_torque(values)
+    if hub <= breakaway:
+        through = "" if isinstance(model.drive, TorqueDrive) else f" ({hub:.3g} N m at the hub)"
+        raise ValueError(
+            f"max_torque={max_torque:g}{through} never exceeds the joint's breakaway friction "
+            f"torque {breakaway:.3g} N m: no input within it moves the hub; raise it"
+        )
 
 
 def _ascend(problem: _Problem, c: Array, iterations: int, bar: Progress):

@@ -43,6 +43,15 @@ METHODS: tuple[str, ...] = tuple(sorted(STRATEGIES))
 """The evolutionary methods an identification can use, by name."""
 
 
+class FitError(ValueError):
+    """A fit that found no parameters at all: every candidate's simulation was non-finite
+    (diverged, or gave NaN), so its cost is ``cost`` and its values are arbitrary."""
+
+    def __init__(self, message: str, cost: float) -> None:
+        super().__init__(message)
+        self.cost = cost
+
+
 # ------------------------------------------------------------------------------ pipeline
 
 
@@ -193,7 +202,8 @@ def identify(
     mode); ``disturbance`` (N m) and ``noise`` give the filter's noise levels, fitted by maximum
     likelihood at the reference parameters where not given. ``initial_state`` (``"rest"``,
     ``"estimate"``, ``"periodic"``; ``initial_modes`` modes) says where records start
-    (:mod:`jaxflex.initial`); one fitted from rest that moved warns.
+    (:mod:`jaxflex.initial`); one fitted from rest that moved warns. A fit in which no
+    candidate gave a finite simulation raises :class:`FitError`.
     """
     t_start = time.perf_counter()
     check_records(records, "identify")
@@ -242,12 +252,17 @@ def identify(
             estimate, cost = refinement.params, refinement.cost
             linearization = refinement.linearization  # the intervals reuse its Jacobian
 
+    if not math.isfinite(cost):
+        effects = objective.model.effect_names
+        suspects = f"the effects {list(effects)}, " if effects else ""
+        raise FitError(
+            f"identify: the fit failed: no candidate of {evolution.n_evaluations} gave a finite "
+            f"simulation (cost {cost}), so there are no parameters to return; check "
+            f"{suspects}the bounds and the records", cost)
     warnings: list[str] = []
     if objective.initial_state == "rest":  # a record that moved at its start is named
         warnings += [moved for r in record_tuple(records)
                      if (moved := _initial.why_not_still(r, objective.model, objective.channels))]
-    if not math.isfinite(cost):
-        warnings.append("no candidate gave a finite simulation: the fit is meaningless")
     if refinement is not None and refinement.result != "successful":
         warnings.append(f"refinement stopped early ({refinement.result}): {refinement.message}")
     if refinement_method is None and intervals:
@@ -349,6 +364,7 @@ __all__ = [
     "FIT_SCHEMA",
     "METHODS",
     "Fit",
+    "FitError",
     "History",
     "build_model",
     "describe_model",

@@ -32,6 +32,9 @@ REFERENCE_DESCRIPTION = (
     "reference testbed: 0.5 m aluminium strip, torque drive, joint angle and tip acceleration"
 )
 """The reference testbed's description (``Model().description``)."""
+BREAKAWAY_SPEED = 1e-9
+"""Joint speed (rad/s) at which :meth:`Model.breakaway_torque` reads the friction: far below
+any motion an encoder sees, so viscous friction adds nothing and a static excess is whole."""
 
 
 class Model(eqx.Module):
@@ -133,6 +136,11 @@ class Model(eqx.Module):
                 raise ValueError(
                     f"rig {self.name!r}: sensor {s.channel} at x = {s.position!r} m lies beyond "
                     f"the link (length {self.testbed.length!r} m)"
+                )
+            if s.position == 0.0 and s.silent_at_clamp(self.testbed.clamp_offset):
+                raise ValueError(
+                    f"rig {self.name!r}: sensor {s.channel} at x = 0 sits at the clamp, where "
+                    "it reads zero; give its distance from the clamp, x (m)"
                 )
         for c in channels:
             if c == "time" or c == self.drive.name:
@@ -238,6 +246,16 @@ class Model(eqx.Module):
         if self.drive.damping:
             torque = torque + self.drive.damping * velocity
         return torque
+
+    def breakaway_torque(self, params: Params) -> float:
+        """The hub torque (N m) that the joint's friction holds at rest: the friction just above
+        zero speed without its smoothing (``tau_c``, plus any static excess such as a Stribeck
+        ``delta_tau_s``). An input whose torque never exceeds it leaves the hub still."""
+        velocity, omega_s = jnp.asarray(BREAKAWAY_SPEED), BREAKAWAY_SPEED * 1e-3
+        torque = joint_friction(params, velocity, omega_s)
+        for effect in self.effects:
+            torque = torque + effect.friction(params, velocity, omega_s)
+        return float(torque)
 
     def loads(self, structure: Structure, params: Params) -> Array:
         """Stacked shapes of all position-dependent loads, ``(k, n)``."""

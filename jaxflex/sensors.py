@@ -99,6 +99,11 @@ class AbstractSensor(eqx.Module):
         """Position along the link (m from the clamp), or None for a joint sensor."""
         return None
 
+    def silent_at_clamp(self, clamp_offset: float) -> bool:
+        """Whether a link sensor at ``x = 0`` reads zero whatever the motion, on a link clamped
+        ``clamp_offset`` m from the joint axis (a gauge there reads the root strain)."""
+        return False
+
     @abc.abstractmethod
     def quantity(self, model: Model, outputs: Outputs) -> Float[Array, "*batch n"]:
         """The physical quantity the sensor responds to, from a simulation of ``model``."""
@@ -265,6 +270,10 @@ class Accelerometer(_StationSensor):
     station_output: ClassVar[str] = "station_acceleration"
     tip_output: ClassVar[str] = "tip_acceleration"
 
+    def silent_at_clamp(self, clamp_offset: float) -> bool:
+        """On the joint axis (no clamp offset) the point does not move."""
+        return clamp_offset == 0.0
+
 
 class DeflectionSensor(_StationSensor):
     """Link deflection ``w(x)`` (m) in the frame that turns with the hub."""
@@ -274,6 +283,10 @@ class DeflectionSensor(_StationSensor):
     channel: str = "tip_deflection"
     station_output: ClassVar[str] = "station_deflection"
     tip_output: ClassVar[str] = "tip_deflection"
+
+    def silent_at_clamp(self, clamp_offset: float) -> bool:
+        """The clamp holds the link's root: no deflection there."""
+        return True
 
 
 SENSORS: Registry[AbstractSensor] = Registry(

@@ -2,17 +2,29 @@
 
 from __future__ import annotations
 
+import warnings
+from collections.abc import Mapping
+from typing import TYPE_CHECKING
+
 import numpy as np
-from jaxtyping import Float
+from jaxtyping import ArrayLike, Float
 
 from jaxflex._arguments import positive
+
+if TYPE_CHECKING:
+    from jaxflex.model import Model
 
 REFERENCE_AMPLITUDES: dict[str, float] = {"triangular": 0.49, "pulse": 0.25, "half_sine": 0.39}
 """Reference inputs of the testbed: shape name → default amplitude (N m), on 0 ≤ t < 0.3 s."""
 REFERENCE_WIDTH = 0.3
 """Duration (s) of the reference inputs; the torque is zero after it."""
-EXCITATION_AMPLITUDES: dict[str, float] = {"chirp": 0.05, "multisine": 0.05}
-"""Default amplitude of the excitation signals (N m)."""
+EXCITATION_BREAKAWAY_MULTIPLE = 3.0
+"""Default peak of the excitation signals, in multiples of the rig's breakaway friction torque
+(:meth:`jaxflex.model.Model.breakaway_torque`): the hub then slides through most of each cycle,
+where a peak below it leaves the hub held by friction and the record without information."""
+EXCITATION_AMPLITUDES: dict[str, float] = {"chirp": 0.32, "multisine": 0.32}
+"""Default amplitude of the excitation signals (N m) on the reference testbed: about
+:data:`EXCITATION_BREAKAWAY_MULTIPLE` times its Coulomb friction ``tau_c = 0.1071`` N m."""
 INPUT_NAMES: tuple[str, ...] = (*REFERENCE_AMPLITUDES, *EXCITATION_AMPLITUDES)
 """Every input shape :func:`reference_input` knows: the references, then the excitations."""
 
@@ -43,7 +55,7 @@ def half_sine(t, amplitude: float = 0.39, width: float = REFERENCE_WIDTH):
     return np.where((t >= 0) & (t < width), amplitude * np.sin(np.pi * t / width), 0.0)
 
 
-def chirp(t, amplitude: float = 0.05, f0: float = 0.5, f1: float = 20.0, duration=None):
+def chirp(t, amplitude: float = 0.32, f0: float = 0.5, f1: float = 20.0, duration=None):
     """Linear chirp from ``f0`` to ``f1`` Hz over ``duration`` (default: the whole grid)."""
     t = np.asarray(t, dtype=np.float64)
     duration = float(t[-1]) if duration is None else duration
@@ -54,7 +66,7 @@ def chirp(t, amplitude: float = 0.05, f0: float = 0.5, f1: float = 20.0, duratio
 
 def multisine(
     t,
-    amplitude: float = 0.05,
+    amplitude: float = 0.32,
     frequencies=(1.0, 3.0, 6.0, 9.0, 14.0, 20.0),
     phases=None,
     seed: int = 0,
@@ -105,3 +117,41 @@ def reference_input(
     return t, _SHAPES[name](t, amplitude)
 
 
+
+
+def rig_amplitude(name: str, model: Model, params: Mapping[str, ArrayLike]) -> float:
+    """Default amplitude of input ``name`` on a rig, in its drive's unit (N m for a torque drive).
+
+    A reference input keeps the testbed's torque (:data:`REFERENCE_AMPLITUDES`) through the
+    drive's gain. An excitation peaks at :data:`EXCITATION_BREAKAWAY_MULTIPLE` times the rig's
+    breakaway torque at ``params`` through the gain, within the drive's saturation: it moves
+    the hub of any rig, whatever its friction and drive.
+    """
+    if name not in _SHAPES:
+        raise ValueError(f"unknown input {name!r}; choose one of {list(INPUT_NAMES)}")
+    gain = model.drive.gain
+    if name in REFERENCE_AMPLITUDES:
+        return REFERENCE_AMPLITUDES[name] / gain
+    amplitude = EXCITATION_BREAKAWAY_MULTIPLE * model.breakaway_torque(params) / gain
+    saturation = getattr(model.drive, "saturation", None)
+    return amplitude if saturation is None else min(amplitude, saturation)
+
+
+def warn_if_held(
+    name: str, model: Model, params: Mapping[str, ArrayLike], signal: Float[ArrayLike, " n"],
+    dt: float,
+) -> bool:
+    """Warn (and return True) when input ``name``'s torque at the hub never exceeds the rig's
+    breakaway torque at ``params``: friction then holds the hub and the record says nothing
+    about the arm. ``signal`` is the logged input in the drive's unit, sampled at ``dt``."""
+    torque = np.asarray(model.input_torque(dict(params), np.asarray(signal, np.float64), dt))
+    peak, breakaway = float(np.max(np.abs(torque), initial=0.0)), model.breakaway_torque(params)
+    if peak > breakaway:
+        return False
+    warnings.warn(
+        f"input {name!r} peaks at {peak:.3g} N m at the hub, which never exceeds the joint's "
+        f"breakaway friction torque {breakaway:.3g} N m: friction holds the hub still; raise "
+        "the amplitude",
+        stacklevel=2,
+    )
+    return True

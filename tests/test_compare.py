@@ -121,7 +121,8 @@ def test_welch_estimate_masks_on_coherence():
 
 
 def test_a_joint_that_never_moves_gives_nan_not_a_crash():
-    weak = make_records(inputs=("multisine",), seed=3)[0]  # 0.05 N m < Coulomb friction
+    weak = make_records(inputs=("multisine",), amplitudes={"multisine": 0.05},  # < tau_c
+                        seed=3)[0]
     assert not np.any(weak.joint_angle)
     with pytest.warns(UserWarning, match="'multisine': measured joint_angle is zero"):
         c = compare(weak, Model(), reference_parameters())

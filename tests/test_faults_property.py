@@ -264,7 +264,8 @@ def _sensor(draw, i: int, length: float) -> dict[str, Any]:
     kind = draw(st.sampled_from(sorted(SENSORS)))
     sensor: dict[str, Any] = {"type": kind, "channel": f"s{i}_{kind}"}
     if kind in LINK_SENSORS:
-        sensor["x"] = draw(_within(0.0, length))
+        # at the clamp only a gauge reads anything (on the joint axis, as here)
+        sensor["x"] = draw(_within(0.0 if kind == "strain_gauge" else 0.01 * length, length))
         if kind == "strain_gauge":
             sensor["calibration"] = draw(st.sampled_from(["strain", "deflection_angle"]))
             if sensor["calibration"] == "deflection_angle" or sensor["x"] >= length:

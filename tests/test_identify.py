@@ -8,6 +8,7 @@ three 2 s reference records share the same search bounds, so they share compiled
 
 import json
 import math
+from typing import ClassVar
 
 import equinox as eqx
 import jax.numpy as jnp
@@ -18,10 +19,12 @@ import scipy.optimize as so
 import jaxflex  # noqa: F401  (float64)
 from jaxflex._io import OutputExistsError
 from jaxflex.data import RecordError
+from jaxflex.effects import AbstractEffect
 from jaxflex.evolve import get_strategy
 from jaxflex.identification import Fit, identify, load_fit
 from jaxflex.model import Model
 from jaxflex.objective import build_objective
+from jaxflex.parameters import ParameterSpec
 from jaxflex.refine import bounded_least_squares, bounded_least_squares_of, refine, uncertainty
 from jaxflex.synthetic import make_records
 
@@ -469,3 +472,54 @@ def test_a_refinement_object_is_the_refine_shorthand_spelled_out(clean):
                                               "rtol": 1e-6, "atol": 1e-8, "max_steps": 100}
     with pytest.raises(TypeError, match="refine must be True, False or a refinement"):
         identify(clean[:1], refine="lm", **kwargs)
+
+
+class _Seizing(AbstractEffect):
+    """A joint law of one's own with a fault: its friction is NaN at any speed."""
+
+    name: ClassVar[str] = "seizing"
+    parameters: ClassVar[tuple[ParameterSpec, ...]] = (
+        ParameterSpec("k_seize", "N m s/rad", 1e-3, 1e-1, 1e-2, "seizing coefficient"),
+    )
+
+    def friction(self, params, velocity, omega_s):
+        return params["k_seize"] * velocity * jnp.log(-1.0 - jnp.abs(velocity))  # NaN
+
+
+def test_a_fit_whose_every_simulation_is_nan_raises_instead_of_returning_a_fit():
+    """Every candidate non-finite: no parameters at all, said at once, as the command line
+    refuses it (not a Fit with cost inf and arbitrary values)."""
+    from jaxflex.identification import FitError
+
+    records = make_records(inputs=("pulse",), noise=False, duration=0.2)
+    model = Model(effects=(_Seizing(),))
+    with pytest.raises(FitError, match=r"^identify: the fit failed: no candidate of 16 gave a "
+                                       r"finite simulation \(cost inf\), so there are no "
+                                       r"parameters to return; check the effects \['seizing'\]"
+                       ) as info:
+        identify(records, model, generations=1, population=8, refine=False, intervals=False)
+    assert info.value.cost == math.inf and isinstance(info.value, ValueError)
+
+
+@pytest.mark.parametrize("command", ["identify", "study"])
+def test_the_command_line_words_a_failed_fit_as_before(monkeypatch, tmp_path, capsys, command):
+    from jaxflex import identification
+    from jaxflex.cli import main
+    from jaxflex.identification import FitError
+    from jaxflex.synthetic import make_records as records_of
+
+    def failed(*args, **kwargs):
+        raise FitError("identify: the fit failed", math.inf)
+
+    monkeypatch.setattr(identification, "identify", failed)
+    monkeypatch.setattr("jaxflex.study.identify", failed)
+    data = tmp_path / "pulse.csv"
+    from jaxflex.data import save_record
+
+    save_record(records_of(inputs=("pulse",), noise=False)[0], data)
+    out = tmp_path / "out.json"
+    assert main([command, str(data), "--out", str(out), "--quiet"]) == 2
+    assert capsys.readouterr().err == (
+        f"jaxflex {command}: error: the fit failed: its cost is inf (the simulation diverged for "
+        "every candidate); check the records and --effect; nothing was written\n")
+    assert not out.exists()

@@ -151,9 +151,18 @@ def test_rotflex_arm_sensors(tmp_path):
         ('[[sensors]]\ntype = "accelerometer"\npositon = 0.2', "sensors[0].positon: unknown key"),
         ('[[sensors]]\ntype = "encoder"\ncounts_per_revolution = 40.5',
          "sensors[0].counts_per_revolution: expected a whole number"),
-        ('[[sensors]]\ntype = "accelerometer"\nchannel = "tip_acceleration"\n'
-         '[[sensors]]\ntype = "accelerometer"\nchannel = "tip_acceleration"',
+        ('[[sensors]]\ntype = "accelerometer"\nchannel = "tip_acceleration"\nx = 0.5\n'
+         '[[sensors]]\ntype = "accelerometer"\nchannel = "tip_acceleration"\nx = 0.5',
          "sensors[1].channel: sensors[0] logs the channel 'tip_acceleration' too"),
+        ('[[sensors]]\ntype = "accelerometer"\nchannel = "acc_mid"',
+         "sensors[0].x: missing value; the accelerometer 'acc_mid' sits on the link: give its "
+         "distance from the clamp in m"),
+        ('[[sensors]]\ntype = "deflection"\nchannel = "laser"\nx = 0',
+         "sensors[0].x: the deflection 'laser' at x = 0 sits at the clamp, where it reads zero"),
+        ('[[sensors]]\ntype = "accelerometer"\nchannel = "acc"\nx = 0.0',
+         "sensors[0].x: the accelerometer 'acc' at x = 0 sits at the clamp, where it reads zero"),
+        ('[[sensors]]\ntype = "strain_gauge"\nchannel = "sg"',
+         "sensors[0].x: missing value; the strain_gauge 'sg' sits on the link"),
     ],
 )
 def test_sensor_table_errors_name_file_and_key(tmp_path, extra, message):
@@ -162,3 +171,16 @@ def test_sensor_table_errors_name_file_and_key(tmp_path, extra, message):
     with pytest.raises(ArmError, match=None) as info:
         load_arm(path)
     assert message in str(info.value) and "\n" not in str(info.value)
+
+
+def test_a_link_sensor_that_reads_zero_at_the_clamp_is_refused_in_python_too():
+    """On the joint axis an accelerometer at the clamp does not move and a deflection there is
+    zero; with the clamp off the axis the accelerometer reads (r·θ''), and a gauge always
+    reads the root strain."""
+    for sensor in (Accelerometer(channel="acc"), DeflectionSensor(channel="laser", x=0.0)):
+        with pytest.raises(ValueError, match=rf"sensor {sensor.channel} at x = 0 sits at the "
+                                             "clamp, where it reads zero"):
+            Model(sensors=(Encoder(), sensor))
+    offset = Model().testbed.replace(clamp_offset=0.05)
+    assert Model(offset, sensors=(Accelerometer(channel="acc"),)).stations == (0.0,)
+    assert Model(sensors=(StrainGauge(channel="sg"),)).stations == (0.0,)

@@ -150,21 +150,25 @@ def record_figures(plot: str | None, records) -> list[str]:
 def search(args: argparse.Namespace, records, model, keywords: dict):
     """:func:`jaxflex.identify` with the command's search settings; a fit whose cost is not
     finite is refused before anything is written."""
-    from jaxflex.identification import identify
+    from jaxflex.identification import FitError, identify
 
-    fit = identify(
-        records,
-        model,
-        method=args.method,
-        seed=args.seed,
-        generations=args.generations,
-        population=args.population,
-        refine=args.refine,
-        progress=not args.quiet,
-        refine_starts=args.refine_starts,
-        tol=args.tol,
-        **keywords,
-    )
+    try:
+        fit = identify(
+            records,
+            model,
+            method=args.method,
+            seed=args.seed,
+            generations=args.generations,
+            population=args.population,
+            refine=args.refine,
+            progress=not args.quiet,
+            refine_starts=args.refine_starts,
+            tol=args.tol,
+            **keywords,
+        )
+    except FitError as err:
+        check_finite_cost(err.cost, "bounds" in keywords)
+        raise
     check_finite_cost(fit.cost, "bounds" in keywords)
     return fit
 

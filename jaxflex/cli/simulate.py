@@ -24,7 +24,7 @@ from jaxflex.cli._checks import (
     seed,
 )
 from jaxflex.cli._options import add_effect_option, add_renamed_option, finite_number
-from jaxflex.signals import INPUT_NAMES
+from jaxflex.signals import EXCITATION_BREAKAWAY_MULTIPLE, INPUT_NAMES
 
 TIMING_SETTINGS = ("dt", "duration")
 """Testbed settings that have their own options (--dt, --duration), not --set."""
@@ -41,8 +41,10 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     )
     parser.add_argument("--input", required=True, choices=INPUT_NAMES, help="torque input shape")
     parser.add_argument("--amplitude", type=float,
-                        help="N m, or the drive's unit with --arm (default: the input's own "
-                             "torque, through the drive's gain)")
+                        help="N m, or the drive's unit with --arm (default: a reference "
+                             "input's own torque, an excitation's "
+                             f"{EXCITATION_BREAKAWAY_MULTIPLE:g} times the rig's breakaway "
+                             "friction torque, through the drive's gain)")
     parser.add_argument(
         "--set",
         action="append",
@@ -118,7 +120,7 @@ def build_model_and_params(assignments: dict[str, float], effects: list[str], dt
 def run(args: argparse.Namespace) -> int:
     from jaxflex._io import all_or_nothing
     from jaxflex.data import save_record
-    from jaxflex.signals import reference_input
+    from jaxflex.signals import reference_input, rig_amplitude, warn_if_held
     from jaxflex.synthetic import add_noise, simulated_record
 
     rig, source = rig_of(args)
@@ -142,7 +144,11 @@ def run(args: argparse.Namespace) -> int:
                n_elements=int(n_elements), limit=max_samples(args.max_samples))
     model, params = build_model_and_params(assignments, args.effect, args.dt, args.duration,
                                            rig)
-    time, torque = reference_input(args.input, args.amplitude, args.duration, args.dt)
+    amplitude = args.amplitude
+    if amplitude is None:
+        amplitude = rig_amplitude(args.input, model, params)
+    time, torque = reference_input(args.input, amplitude, args.duration, args.dt)
+    warn_if_held(args.input, model, params, torque, args.dt)
     metadata = {
         "generator": "jaxflex simulate",
         "input": args.input,
@@ -181,7 +187,11 @@ def simulate_logged(args: argparse.Namespace, arm, out, plot) -> int:
     from jaxflex.data import save_record
     from jaxflex.measured import logged_record, logged_units
     from jaxflex.rest import REST_KEY, rest_note
-    from jaxflex.signals import EXCITATION_AMPLITUDES, REFERENCE_AMPLITUDES, reference_input
+    from jaxflex.signals import (
+        reference_input,
+        rig_amplitude,
+        warn_if_held,
+    )
     from jaxflex.testbed import TESTBED_SETTINGS
 
     if not (math.isfinite(args.rest) and args.rest >= 0):
@@ -205,9 +215,10 @@ def simulate_logged(args: argparse.Namespace, arm, out, plot) -> int:
     except ValueError as err:
         raise UsageError(f"--set: {err}") from None
     amplitude = args.amplitude
-    if amplitude is None:  # the input's own torque, in the drive's unit
-        amplitude = (REFERENCE_AMPLITUDES | EXCITATION_AMPLITUDES)[args.input] / arm.drive.gain
+    if amplitude is None:  # the input's own torque, or one that moves the hub, in the drive's unit
+        amplitude = rig_amplitude(args.input, model, params)
     _, signal = reference_input(args.input, amplitude, args.duration, args.dt)
+    warn_if_held(args.input, model, params, signal, args.dt)
     signal = np.concatenate([np.zeros(n_rest), signal])
     time = np.arange(signal.size) * args.dt
     metadata = {

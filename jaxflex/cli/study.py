@@ -85,6 +85,7 @@ def run(args: argparse.Namespace) -> int:
     from jaxflex import identify
     from jaxflex._io import all_or_nothing
     from jaxflex.distributed import is_main
+    from jaxflex.identification import FitError
     from jaxflex.study import run_study
 
     if (status := enter(args)) is not None:
@@ -101,18 +102,22 @@ def run(args: argparse.Namespace) -> int:
     keywords = fit_keywords(args, identify)
     windows = windows_of(args, model, records)
     ready = ready_records(model, records, windows, at_rest=args.initial_state == "rest")
-    study = run_study(
-        ready,
-        methods,
-        seeds,
-        model=model,
-        generations=args.generations,
-        population=args.population,
-        refine=args.refine,
-        progress=not args.quiet,
-        tol=args.tol,
-        **keywords,
-    )
+    try:
+        study = run_study(
+            ready,
+            methods,
+            seeds,
+            model=model,
+            generations=args.generations,
+            population=args.population,
+            refine=args.refine,
+            progress=not args.quiet,
+            tol=args.tol,
+            **keywords,
+        )
+    except FitError as err:
+        check_finite_cost(err.cost, "bounds" in keywords)
+        raise
     for r in study.runs:
         check_finite_cost(r.cost, "bounds" in keywords)
     if not is_main():
