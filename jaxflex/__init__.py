@@ -68,9 +68,16 @@ else:
 if TYPE_CHECKING:  # what static tools see; at run time __getattr__ imports each on first use
     from jaxflex import datasets
     from jaxflex.arm import ArmError, arm_to_toml, load_arm
-    from jaxflex.comparison import Comparison, compare, fit_and_validate, noise_floor
+    from jaxflex.comparison import Comparison, FRFSettings, compare, fit_and_validate, noise_floor
     from jaxflex.data import Dataset, Record, load_dataset, load_record, save_record
-    from jaxflex.design import DesignResult, design_input, predicted_intervals
+    from jaxflex.design import (
+        DesignResult,
+        compare_inputs,
+        design_input,
+        interval_table,
+        paper_inputs,
+        predicted_intervals,
+    )
     from jaxflex.diagnosis import Diagnosis, diagnose
     from jaxflex.discovery import (
         DiscoveryReport,
@@ -80,6 +87,7 @@ if TYPE_CHECKING:  # what static tools see; at run time __getattr__ imports each
         refit,
         score_tests,
     )
+    from jaxflex.discovery.explain import explain
     from jaxflex.drives import (
         DRIVES,
         AbstractDrive,
@@ -91,7 +99,11 @@ if TYPE_CHECKING:  # what static tools see; at run time __getattr__ imports each
     from jaxflex.effects import EFFECTS, AbstractEffect, get_effect, library, register_effect
     from jaxflex.frequency_response import frf, mode_shapes, natural_frequencies
     from jaxflex.identification import Fit, identify, load_fit
+    from jaxflex.intervals import uncertainty
+    from jaxflex.measured import fit_noise, load_records, validate
+    from jaxflex.metrics import nrmse
     from jaxflex.model import Model
+    from jaxflex.objective import build_objective, fitted_channels
     from jaxflex.parameters import (
         BASE_PARAMETERS,
         ParameterSpace,
@@ -99,36 +111,48 @@ if TYPE_CHECKING:  # what static tools see; at run time __getattr__ imports each
         base_space,
         reference_parameters,
     )
-    from jaxflex.rigid import RigidEstimate, estimate_rigid, warm_start
+    from jaxflex.prediction_report import compare_predictions, prediction_table
+    from jaxflex.rigid import RigidEstimate, estimate_rigid, rigid_simulate, warm_start
     from jaxflex.signals import reference_input
     from jaxflex.simulation import Outputs, simulate, simulate_batch
-    from jaxflex.synthetic import make_records
+    from jaxflex.synthetic import ACCELEROMETER_SIGMA, ENCODER_STEP, make_records
     from jaxflex.testbed import Testbed
 
 _SOURCES: dict[str, tuple[str, ...]] = {
     "jaxflex.arm": ("ArmError", "arm_to_toml", "load_arm"),
-    "jaxflex.comparison": ("Comparison", "compare", "fit_and_validate", "noise_floor"),
+    "jaxflex.comparison": (
+        "Comparison", "FRFSettings", "compare", "fit_and_validate", "noise_floor",
+    ),
     "jaxflex.data": ("Dataset", "Record", "load_dataset", "load_record", "save_record"),
-    "jaxflex.design": ("DesignResult", "design_input", "predicted_intervals"),
+    "jaxflex.design": (
+        "DesignResult", "compare_inputs", "design_input", "interval_table", "paper_inputs",
+        "predicted_intervals",
+    ),
     "jaxflex.diagnosis": ("Diagnosis", "diagnose"),
     "jaxflex.discovery": (
         "DiscoveryReport", "add_effect", "discover", "load_example", "refit", "score_tests",
     ),
+    "jaxflex.discovery.explain": ("explain",),
     "jaxflex.drives": (
         "DRIVES", "CommandDrive", "CurrentDrive", "AbstractDrive", "TorqueDrive", "VoltageDrive",
     ),
     "jaxflex.effects": ("EFFECTS", "AbstractEffect", "get_effect", "library", "register_effect"),
     "jaxflex.frequency_response": ("frf", "mode_shapes", "natural_frequencies"),
     "jaxflex.identification": ("Fit", "identify", "load_fit"),
+    "jaxflex.intervals": ("uncertainty",),
+    "jaxflex.measured": ("fit_noise", "load_records", "validate"),
+    "jaxflex.metrics": ("nrmse",),
     "jaxflex.model": ("Model",),
+    "jaxflex.objective": ("build_objective", "fitted_channels"),
     "jaxflex.parameters": (
         "BASE_PARAMETERS", "ParameterSpace", "ParameterSpec", "base_space",
         "reference_parameters",
     ),
-    "jaxflex.rigid": ("RigidEstimate", "estimate_rigid", "warm_start"),
+    "jaxflex.prediction_report": ("compare_predictions", "prediction_table"),
+    "jaxflex.rigid": ("RigidEstimate", "estimate_rigid", "rigid_simulate", "warm_start"),
     "jaxflex.signals": ("reference_input",),
     "jaxflex.simulation": ("Outputs", "simulate", "simulate_batch"),
-    "jaxflex.synthetic": ("make_records",),
+    "jaxflex.synthetic": ("ACCELEROMETER_SIGMA", "ENCODER_STEP", "make_records"),
     "jaxflex.testbed": ("Testbed",),
 }
 """Where each top-level name is defined (the imports above, for the interpreter)."""
@@ -158,9 +182,13 @@ def __dir__() -> list[str]:
 __version__ = "0.1.0"
 
 __all__ = [
+    "ACCELEROMETER_SIGMA",
     "BASE_PARAMETERS",
     "DRIVES",
     "EFFECTS",
+    "ENCODER_STEP",
+    "AbstractDrive",
+    "AbstractEffect",
     "ArmError",
     "CommandDrive",
     "Comparison",
@@ -169,8 +197,7 @@ __all__ = [
     "DesignResult",
     "Diagnosis",
     "DiscoveryReport",
-    "AbstractDrive",
-    "AbstractEffect",
+    "FRFSettings",
     "Fit",
     "Model",
     "Outputs",
@@ -184,34 +211,48 @@ __all__ = [
     "add_effect",
     "arm_to_toml",
     "base_space",
+    "build_objective",
     "compare",
+    "compare_inputs",
+    "compare_predictions",
     "datasets",
     "design_input",
     "diagnose",
     "discover",
     "estimate_rigid",
+    "explain",
     "fit_and_validate",
+    "fit_noise",
+    "fitted_channels",
     "frf",
     "get_effect",
     "identify",
+    "interval_table",
     "library",
     "load_arm",
     "load_dataset",
     "load_example",
     "load_fit",
     "load_record",
+    "load_records",
     "make_records",
     "mode_shapes",
     "natural_frequencies",
     "noise_floor",
+    "nrmse",
+    "paper_inputs",
     "predicted_intervals",
+    "prediction_table",
     "reference_input",
     "reference_parameters",
     "refit",
     "register_effect",
+    "rigid_simulate",
     "save_record",
     "score_tests",
     "simulate",
     "simulate_batch",
+    "uncertainty",
+    "validate",
     "warm_start",
 ]

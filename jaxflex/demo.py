@@ -22,6 +22,10 @@ has succeeded (:func:`jaxflex._io.all_or_nothing`).
 from __future__ import annotations
 
 import os
+import shlex
+import shutil
+import sys
+import sysconfig
 import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field, replace
@@ -196,8 +200,27 @@ def run_demo(
             echo(f"   ({elapsed:.1f} s)")
     total = sum(state.timings.values())
     echo(f"== done in {total:.1f} s; wrote {len(state.files)} files to {out}/")
-    echo(f"   try: jaxflex validate {out}/records --fit {out}/fit.json")
+    records, fit = shlex.quote(f"{out}/records"), shlex.quote(f"{out}/fit.json")
+    echo(f"   try: {jaxflex_command()} validate {records} --fit {fit}")
     return state
+
+
+def jaxflex_command() -> str:
+    """How to run the ``jaxflex`` command of this interpreter from a shell in the working
+    folder: ``jaxflex`` when the ``PATH`` finds that very script, else its path (relative when it
+    lies below the working folder, as ``.venv/bin/jaxflex`` after ``make demo``), else
+    ``python -m jaxflex`` with this interpreter."""
+    name = "jaxflex.exe" if os.name == "nt" else "jaxflex"
+    script = Path(sysconfig.get_path("scripts")) / name
+    if not script.is_file():
+        return f"{shlex.quote(sys.executable)} -m jaxflex"
+    found = shutil.which("jaxflex")
+    if found is not None and Path(found).resolve() == script.resolve():
+        return "jaxflex"
+    relative = os.path.relpath(script)
+    if relative.startswith(".."):
+        return shlex.quote(str(script))
+    return shlex.quote(relative if os.sep in relative else os.path.join(".", relative))
 
 
 def _record_path(out: Path, name: str) -> Path:

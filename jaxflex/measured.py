@@ -12,19 +12,23 @@ than the link, a strain above 1 %, a deflection angle above 1 rad) is refused as
 another unit. A rig without sensors reads records of the simulator's outputs (the
 reference format) as they are, cut to the window.
 
-:func:`validate` simulates a fit on such records and scores each channel (NRMSE, percent);
+:func:`load_records` reads a rig's record files (or takes records already read) and makes them
+ready, as the command line does; :func:`validate` simulates a fit on such records and scores
+each channel (NRMSE, percent);
 :func:`logged_record` goes the other way: what the rig would log, simulated.
 """
 
 from __future__ import annotations
 
 import math
+import os
 import warnings
-from collections.abc import Mapping, Sequence
+from collections.abc import Iterable, Mapping, Sequence
+from pathlib import Path
 
 import numpy as np
 
-from jaxflex.data import OUTPUT_COLUMNS, Record
+from jaxflex.data import OUTPUT_COLUMNS, Dataset, Record, load_dataset, load_record
 from jaxflex.metrics import nrmse
 from jaxflex.model import Model
 from jaxflex.noise import NoiseLevel
@@ -212,6 +216,47 @@ def prepare(
             for r, w in zip(records, windows, strict=True)]
 
 
+def load_records(
+    paths: str | os.PathLike | Record | Iterable[str | os.PathLike | Record],
+    rig: Model | str | os.PathLike,
+    windows: Sequence[Window] | None = None,
+    *,
+    resample: bool = False,
+    unit_check: bool = True,
+) -> Dataset:
+    """A rig's records, read as the command line reads them and made ready for its model.
+
+    ``paths`` is a record file, a directory of them, or a sequence of files, directories and
+    records already read (a :class:`~jaxflex.data.Record`, as :func:`jaxflex.datasets.load`
+    gives). ``rig`` is a :class:`~jaxflex.model.Model`, a packaged rig's name or an arm file
+    (:func:`jaxflex.arm.load_arm`). A column named as one of the rig's sensor channels is that
+    sensor's (:func:`~jaxflex.data.load_record` with ``channels=``); each record is then cut to
+    its window (``windows``: one ``(t0, t1)`` or None per record), checked to start at rest and
+    re-zeroed (:func:`model_record`). ``resample`` and ``unit_check`` are
+    :func:`~jaxflex.data.load_record`'s. The records keep the drive's input column and the
+    rig's channels in their units: what :func:`jaxflex.identify`, :func:`jaxflex.compare` and
+    :func:`jaxflex.discover` take with the same ``rig``.
+    """
+    from jaxflex.arm import load_arm
+
+    model = rig if isinstance(rig, Model) else load_arm(rig)
+    items = [paths] if isinstance(paths, (str, os.PathLike, Record)) else list(paths)
+    records: list[Record] = []
+    for item in items:
+        if isinstance(item, Record):
+            records.append(item)
+        elif not isinstance(item, (str, os.PathLike)):
+            raise TypeError(f"load_records: paths must be record files, directories or "
+                            f"records, got {type(item).__name__}")
+        elif Path(item).is_dir():
+            records += load_dataset(item, resample=resample, unit_check=unit_check,
+                                    channels=model.channels)
+        else:
+            records.append(load_record(item, resample=resample, unit_check=unit_check,
+                                       channels=model.channels))
+    return Dataset(prepare(model, Dataset(records), windows))
+
+
 def fit_noise(model: Model, record: Record) -> dict[str, NoiseLevel]:
     """The noise model of each of the rig's sensors in ``record``, in its channel's unit (for
     ``discover``): white where the sensor has a noise level, else quantised at its resolution;
@@ -293,5 +338,5 @@ def logged_record(
                                metadata={"rig": model.name} | dict(metadata or {}))
 
 
-__all__ = ["REST_SPAN", "channel_notes", "fit_noise", "logged_record", "logged_sensors",
-           "logged_units", "model_record", "prepare", "rest_span", "validate"]
+__all__ = ["REST_SPAN", "channel_notes", "fit_noise", "load_records", "logged_record",
+           "logged_sensors", "logged_units", "model_record", "prepare", "rest_span", "validate"]

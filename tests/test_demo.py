@@ -3,7 +3,12 @@
 from __future__ import annotations
 
 import json
+import os
+import shlex
+import subprocess
+import sysconfig
 from dataclasses import replace
+from pathlib import Path
 
 import pytest
 
@@ -74,6 +79,35 @@ def test_refuses_to_overwrite_before_doing_any_work(tmp_path):
     assert ran == [] and (out / "records" / "pulse.csv").read_text() == "mine\n"
     run_demo(out, steps=steps, overwrite=True, echo=lambda _: None)
     assert ran == ["records"]
+
+
+def _hint(out) -> list[str]:
+    """The closing hint of a demo with no steps, split as a shell would."""
+    lines = []
+    run_demo(out, steps=(), echo=lines.append)
+    assert lines[-1].startswith("   try: ")
+    return shlex.split(lines[-1].removeprefix("   try: "))
+
+
+def test_the_closing_hint_runs_without_an_activated_environment(tmp_path, monkeypatch):
+    """After ``make demo`` the environment's scripts are not on the PATH: the hint names this
+    interpreter's ``jaxflex`` by its path, and the shell runs it as printed."""
+    script = Path(sysconfig.get_path("scripts")) / "jaxflex"
+    if not script.is_file():
+        pytest.skip(f"{script}: jaxflex is not installed as a script beside this interpreter")
+    monkeypatch.setenv("PATH", os.pathsep.join(["/usr/bin", "/bin"]))
+    monkeypatch.chdir(script.parent.parent.parent)  # the folder holding the environment
+    argv = _hint(tmp_path / "demo")
+    assert argv[0] == os.path.join(script.parent.parent.name, script.parent.name, "jaxflex")
+    assert argv[1:] == ["validate", f"{tmp_path}/demo/records", "--fit",
+                        f"{tmp_path}/demo/fit.json"]
+    assert os.access(argv[0], os.X_OK)
+    shown = subprocess.run([argv[0], "validate", "--help"], capture_output=True, text=True,
+                           check=True)
+    assert shown.stdout.startswith("usage: jaxflex validate")
+    # once the PATH finds that very script (an activated environment), its name is enough
+    monkeypatch.setenv("PATH", str(script.parent))
+    assert _hint(tmp_path / "demo")[0] == "jaxflex"
 
 
 def test_cli_errors(tmp_path, capsys):

@@ -2,6 +2,7 @@
 windows and rest."""
 
 import math
+import re
 
 import numpy as np
 import pytest
@@ -183,3 +184,58 @@ def test_sensors_named_as_the_reference_columns_read_the_simulator_outputs_exact
     np.testing.assert_array_equal(ready.tip_acceleration, record.tip_acceleration)
     assert fitted_channels([record], rig) == ("joint_angle", "tip_acceleration")
     assert model_record(load_arm(ARMS / "reference.toml"), record) is record  # no sensors
+
+
+def _strip_rig(tmp_path):
+    """Not the reference strip: a 0.4 m link on a voltage drive, an encoder of 2000 counts and
+    an accelerometer part-way along the link whose channel, ``tip_accel``, resembles a
+    reference-format column."""
+    path = tmp_path / "strip.toml"
+    head = re.sub(r"(?m)^length = [\d.]+", "length = 0.4", ROTFLEX_TEXT.split("[[sensors]]")[0])
+    path.write_text(re.sub(r'(?m)^name = ".*"', 'name = "strip"', head)
+                    + '[[sensors]]\ntype = "encoder"\nchannel = "joint_angle"\n'
+                    + "counts_per_revolution = 2000\n"
+                    + '[[sensors]]\ntype = "accelerometer"\nchannel = "tip_accel"\nx = 0.2\n')
+    return path
+
+
+ROTFLEX_TEXT = (ARMS / "quanser_rotflex.toml").read_text()
+
+
+def test_load_records_reads_a_rigs_files_as_the_command_line_does(tmp_path):
+    """A rig's record read alone suggests renaming its sensor's column and points to
+    load_records; load_records reads it for the rig (file, directory, name or Model), cut to its
+    window and re-zeroed at rest."""
+    from jaxflex import load_record, load_records, save_record
+    from jaxflex.data import RecordError
+    from jaxflex.measured import logged_record
+
+    arm = _strip_rig(tmp_path)
+    rig = load_arm(arm)
+    dt = rig.testbed.dt
+    t = np.arange(0.0, 1.5, dt)
+    volts = np.where(t < 0.3, 0.0, 4.0 * np.sin(2 * np.pi * 1.5 * (t - 0.3)))
+    true = {spec.name: spec.reference for spec in rig.base}
+    logged = logged_record(rig, true, t + 2.0, volts, seed=4, name="run")
+    offset = dict(logged.extras) | {"joint_angle": logged.joint_angle + 0.3}
+    record = Record(time=logged.time, joint_angle=offset.pop("joint_angle"), extras=offset,
+                    name="run")
+    (tmp_path / "runs").mkdir()
+    save_record(record, tmp_path / "runs" / "run.csv")
+    with pytest.raises(RecordError) as err:
+        load_record(tmp_path / "runs" / "run.csv")
+    message = str(err.value)
+    assert "'tip_acceleration' not found; did you mean 'tip_accel'?" in message
+    assert "jaxflex.load_records(paths, rig)" in message and "\n" not in message
+    for given in (tmp_path / "runs" / "run.csv", tmp_path / "runs", [record]):
+        [ready] = load_records(given, arm)
+        assert ready.time[0] == 0.0 and ready.input_name == "voltage"
+        assert set(ready.columns) == {"time", "voltage", "joint_angle", "tip_accel"}
+        assert np.max(np.abs(ready.joint_angle[: int(0.25 / dt)])) == 0.0  # re-zeroed at rest
+    assert load_records(tmp_path / "runs", rig)[0].name == "run"
+    [cut] = load_records(record, rig, [(2.0, 3.0)])
+    assert cut.time[-1] == pytest.approx(1.0, abs=1.01 * dt)
+    with pytest.raises(ValueError, match="rest"):
+        load_records(record, rig, [(2.5, 3.0)])  # the arm moves at 2.5 s
+    with pytest.raises(TypeError, match="got int"):
+        load_records([5], rig)

@@ -3,6 +3,8 @@ what it promises: its printed conclusions and its inline figures."""
 
 from __future__ import annotations
 
+import ast
+import importlib
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -39,6 +41,31 @@ def run_notebook(name: str, monkeypatch, tmp_path, timeout: int = 600) -> Execut
     text = "".join(o.get("text", "") for o in outputs if o.output_type == "stream")
     images = sum("image/png" in o.get("data", {}) for o in outputs)
     return Executed(text=text, images=images, cells=nb.cells)
+
+
+def test_notebooks_use_public_names_only():
+    """A notebook imports what a user would: names of ``jaxflex.__all__``, figures of
+    ``jaxflex.plots.__all__``, and ``jaxflex.refine.refine``, the one public function that shares
+    its module's name (so it cannot be a top-level name)."""
+    allowed = {"jaxflex", "jaxflex.plots"}
+    seen = set()
+    for path in sorted(NOTEBOOKS.glob("*.ipynb")):
+        nb = nbformat.read(path, as_version=4)
+        code = "\n".join(c.source for c in nb.cells if c.cell_type == "code")
+        code = "\n".join(line for line in code.splitlines() if not line.startswith("%"))
+        for node in ast.walk(ast.parse(code)):
+            if isinstance(node, ast.ImportFrom) and node.module.startswith("jaxflex"):
+                module = importlib.import_module(node.module)
+                for alias in node.names:
+                    where = f"{path.name}: from {node.module} import {alias.name}"
+                    assert alias.name in module.__all__, where
+                    own = node.module.rpartition(".")[2] == alias.name
+                    assert node.module in allowed or own, where
+                    seen.add(node.module)
+            elif isinstance(node, ast.Import):
+                names = [a.name for a in node.names]
+                assert all(n == "jaxflex" or not n.startswith("jaxflex") for n in names), names
+    assert {"jaxflex", "jaxflex.plots"} <= seen
 
 
 def test_identify_notebook(monkeypatch, tmp_path):
