@@ -465,6 +465,53 @@ def test_ctrl_c_that_meets_a_bare_except_still_stops_the_command(tmp_path):
     assert list(tmp_path.iterdir()) == []
 
 
+LONG_COMPILED_CALL = """\
+import sys
+import jax
+from jax import lax
+from matplotlib.figure import Figure
+from jaxflex.cli import main
+
+endless = jax.jit(lambda x: lax.fori_loop(0, 10**12, lambda i, v: v * 0.5 + 1.0, x))
+
+
+def savefig(self, *args, **kwargs):  # the CSV is staged; one compiled call that runs for hours
+    print("calling", flush=True)
+    endless(1.0).block_until_ready()
+
+
+Figure.savefig = savefig
+endless.lower(1.0).compile()
+sys.exit(main(sys.argv[1:]))
+"""
+
+
+@pytest.mark.parametrize(("signum", "status", "word"), [
+    (signal.SIGTERM, 143, "terminated"), (signal.SIGINT, 130, "interrupted")])
+def test_signals_stop_a_long_compiled_call_at_once(tmp_path, signum, status, word):
+    """Python runs a signal handler only between bytecodes, never inside one long XLA call:
+    the command still ends within seconds, with one line, removing the staged output."""
+    env = os.environ | {"PYTHONPATH": str(Path(jaxflex.__file__).parent.parent)}
+    proc = subprocess.Popen(
+        [sys.executable, "-c", LONG_COMPILED_CALL, "simulate", "--input", "pulse",
+         "--duration", "0.1", "--out", "s.csv", "--plot", "s.png"], cwd=tmp_path, env=env,
+        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, preexec_fn=_default_sigint)
+    try:
+        assert proc.stdout.readline() == "calling\n"
+        assert temp_files(tmp_path)  # the CSV is staged
+        time.sleep(1.0)  # inside the call
+        proc.send_signal(signum)
+        start = time.monotonic()
+        _, err = proc.communicate(timeout=30)
+        took = time.monotonic() - start
+    finally:
+        proc.kill()
+    assert proc.returncode == status
+    assert took < 5.0
+    assert err.strip().splitlines() == [f"jaxflex simulate: {word}; no partial output was left"]
+    assert list(tmp_path.iterdir()) == []
+
+
 def test_sigterm_in_the_api_leaves_no_staged_file(tmp_path):
     """Outside the command line too: SIGTERM inside all_or_nothing removes what was staged.
     The child starts with SIGTERM's default action whatever the test runner passed on (an

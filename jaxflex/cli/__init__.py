@@ -164,7 +164,12 @@ def _on_signals(prefix: str):
     """On SIGINT or SIGTERM remove the temporary files, say so in one line and exit 130 or 143
     at once (main thread only): an exception could meet a bare ``except:`` in a library and be
     lost (JAX's tracing has several), and the command would go on to write its outputs.
-    Returns the undo."""
+    Python runs a handler only between two bytecodes of the main thread, never while one
+    compiled call runs (a large rig's simulation can take minutes): a watcher thread, woken by
+    the signal itself (:func:`signal.set_wakeup_fd`; XLA lets other threads run), ends the
+    process when the main thread has not done so within :data:`SIGNAL_GRACE_S` (unless a
+    handler of the command's own, such as the launcher's of ``--processes``, replaced this
+    one). Returns the undo."""
     import os
     import threading
 
@@ -174,20 +179,48 @@ def _on_signals(prefix: str):
         return lambda: None
     endings = {signal.SIGINT: ("interrupted", EXIT_INTERRUPTED),
                signal.SIGTERM: ("terminated", EXIT_TERMINATED)}
+    ending = threading.Lock()  # one ending, by whichever thread gets there first
 
-    def handler(signum, frame):
+    def end(signum: int) -> None:
+        ending.acquire()
         remove_temporaries()
         word, status = endings[signum]
         print(f"{prefix}: {word}; no partial output was left", file=sys.stderr, flush=True)
         os._exit(status)
 
+    def handler(signum, frame):
+        end(signum)
+
     previous = {signum: signal.signal(signum, handler) for signum in endings}
+    woken, wake = os.pipe()
+    os.set_blocking(wake, False)
+    previous_wakeup = signal.set_wakeup_fd(wake, warn_on_full_buffer=False)
+
+    def watch() -> None:
+        import time
+
+        while data := os.read(woken, 64):  # empty: the command ended, the pipe is closed
+            for signum in data:
+                if signum in endings:
+                    time.sleep(SIGNAL_GRACE_S)  # the main thread's handler, when it can run
+                    if signal.getsignal(signum) is handler:
+                        end(signum)
+        os.close(woken)
+
+    threading.Thread(target=watch, name="jaxflex-signals", daemon=True).start()
 
     def restore() -> None:
+        signal.set_wakeup_fd(previous_wakeup)
+        os.close(wake)
         for signum, replaced in previous.items():
             signal.signal(signum, replaced)
 
     return restore
+
+
+SIGNAL_GRACE_S = 0.25
+"""Seconds a signal waits for the main thread's handler before the watcher thread ends the
+command (the main thread may be inside one long compiled call)."""
 
 
 if __name__ == "__main__":
