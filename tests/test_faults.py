@@ -400,6 +400,49 @@ def test_repeated_method_is_refused(tmp_path, capsys):
              tmp_path / "s.json"], capsys, tmp_path, "--methods 'de,de': 'de' given twice")
 
 
+# --- the environment: checked before JAX starts, one line ---------------------------------------
+
+
+def jaxflex_env(args, cwd: Path, **settings: str) -> subprocess.CompletedProcess:
+    """``jaxflex ARGS`` in a fresh process with the environment variables ``settings``."""
+    env = os.environ | {"PYTHONPATH": str(Path(jaxflex.__file__).parent.parent)} | settings
+    return subprocess.run([sys.executable, "-m", "jaxflex", *map(str, args)], cwd=cwd, env=env,
+                          capture_output=True, text=True, timeout=120)
+
+
+@pytest.mark.parametrize("value", ["0", "", "abc", "-1"])
+def test_a_bad_host_device_count_is_one_line(tmp_path, value):
+    done = jaxflex_env(["arms", "list"], tmp_path, JAXFLEX_HOST_DEVICES=value)
+    assert (done.returncode, done.stdout) == (2, "")
+    assert done.stderr.splitlines() == [
+        f"jaxflex arms: error: JAXFLEX_HOST_DEVICES={value!r} must be an integer >= 1 (the CPU "
+        "devices to split populations over; unset it for one per usable core)"]
+
+
+def test_a_host_device_count_beyond_the_machine_is_lowered_with_one_line(tmp_path):
+    from jaxflex._host import host_device_ceiling, usable_cores
+
+    done = jaxflex_env(["arms", "list"], tmp_path, JAXFLEX_HOST_DEVICES="100000")
+    assert done.returncode == 0 and "quanser_rotflex" in done.stdout
+    assert done.stderr.splitlines() == [
+        f"jaxflex arms: warning: JAXFLEX_HOST_DEVICES=100000 is more than this machine can use "
+        f"(its {usable_cores()} usable cores, or 8 at least); using {host_device_ceiling()} CPU "
+        "devices"]
+
+
+@pytest.mark.parametrize(("folder", "problem"), [
+    ("afile", "not a directory"), ("afile/cache", "afile is not a directory")])
+def test_an_unusable_cache_folder_is_one_line(tmp_path, folder, problem):
+    (tmp_path / "afile").write_text("not a folder")
+    env = {"JAX_COMPILATION_CACHE_DIR": "", "JAXFLEX_CACHE_DIR": folder}
+    done = jaxflex_env(["simulate", "--input", "pulse", "--out", "s.csv"], tmp_path, **env)
+    assert (done.returncode, done.stdout) == (2, "")
+    assert done.stderr.splitlines() == [
+        f"jaxflex simulate: error: JAXFLEX_CACHE_DIR={folder}: {problem}; set it to a folder "
+        "this user may write, or to nothing (JAXFLEX_CACHE_DIR=) to keep no compiled programs"]
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["afile"]
+
+
 # --- interruption ---------------------------------------------------------------------------------
 
 

@@ -113,13 +113,14 @@ def main(argv: Sequence[str] | None = None) -> int:
         print("jaxflex: interrupted", file=sys.stderr)
         return EXIT_INTERRUPTED
     args.argv = argv  # what a command that starts copies of itself passes on
-    use_persistent_cache()
     prefix = f"jaxflex {args.command}"
     restore = _on_signals(prefix)
     format_warning = warnings.formatwarning
     try:
         warnings.formatwarning = one_line_warning(prefix)
         with warnings.catch_warnings():  # registries anew: a second run warns as the first
+            check_environment()
+            use_persistent_cache()
             return int(args.func(args) or 0)
     except KeyboardInterrupt:
         print(f"{prefix}: interrupted; no partial output was left", file=sys.stderr)
@@ -142,7 +143,8 @@ def use_persistent_cache() -> None:
     program however quickly it compiled (JAX's default keeps those over 1 s: a run compiles a
     couple of hundred small ones, several seconds together, that a second run would compile
     again). JAX's own ``JAX_COMPILATION_CACHE_DIR`` wins when set; nothing changes once JAX
-    has compiled."""
+    has compiled. A ``$JAXFLEX_CACHE_DIR`` that cannot be written is refused in one line (JAX
+    would warn at every program); an unwritable default folder means no cache."""
     import os
     from pathlib import Path
 
@@ -154,10 +156,39 @@ def use_persistent_cache() -> None:
     if folder is None:
         base = os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache"
         folder = str(Path(base) / "jaxflex")
+        if _unwritable_folder(Path(folder)):
+            return  # no cache rather than one warning from JAX per program it compiles
+    elif folder and (problem := _unwritable_folder(Path(folder))):
+        raise ValueError(
+            f"JAXFLEX_CACHE_DIR={folder}: {problem}; set it to a folder this user may write, "
+            "or to nothing (JAXFLEX_CACHE_DIR=) to keep no compiled programs"
+        )
     if folder:
         jax.config.update("jax_compilation_cache_dir", folder)
         if "JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS" not in os.environ:
             jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.0)
+
+
+def check_environment() -> None:
+    """Refuse, before JAX starts, an environment variable of jaxflex's that it cannot use
+    (``JAXFLEX_HOST_DEVICES``: :func:`jaxflex._host.default_host_devices`)."""
+    from jaxflex._host import default_host_devices
+
+    default_host_devices()
+
+
+def _unwritable_folder(folder) -> str | None:
+    """Why ``folder`` cannot be created or written, or None; creates nothing."""
+    import os
+
+    existing = folder
+    while not existing.exists() and existing != existing.parent:
+        existing = existing.parent
+    if not existing.is_dir():
+        return f"{existing} is not a directory" if existing != folder else "not a directory"
+    if not os.access(existing, os.W_OK | os.X_OK):
+        return "not writable" if existing == folder else f"{existing} is not writable"
+    return None
 
 
 def _on_signals(prefix: str):
