@@ -406,6 +406,10 @@ def _drive(table: _Table) -> tuple[AbstractDrive, tuple[DriveGain, ...]]:
     if cls is CommandDrive:
         return _command_drive(table)
     settings = {f.name: table.number(f.name) for f in dataclasses.fields(cls)}
+    for name in getattr(cls, "EFFICIENCIES", ()):
+        if settings[name] > 1:
+            raise table._wrong(name, "a number in (0, 1] (an efficiency: power out over power "
+                                     "in)", table.data[name])
     table.done()
     return cls(**settings), ()
 
