@@ -50,9 +50,9 @@ without ``[[sensors]]`` is fitted on the simulator's outputs, named as record co
 A sensor's ``gain`` given as a table of ``reference``, ``lower`` and ``upper`` is identified:
 the model holds a ``sensor_gain`` effect on the sensor's channel
 (:mod:`jaxflex.effects.sensor_gain`). A sensor with ``rezero = false`` (its records keep their
-zero) may give its ``offset`` as such a table: the model then holds a ``sensor_offset`` effect,
-symmetric about the stated offset. A command drive's ``torque_per_unit`` given as such a table
-is identified the same way: the model holds a ``drive_gain`` effect
+zero) may give its ``offset`` as such a table: the model then holds a ``sensor_offset`` effect
+that keeps the offset within those bounds. A command drive's ``torque_per_unit`` given as such a
+table is identified the same way: the model holds a ``drive_gain`` effect
 (:mod:`jaxflex.effects.drive_gain`). By default records are re-zeroed at rest
 (:mod:`jaxflex.measured`), which removes any offset.
 
@@ -241,11 +241,14 @@ def _gain_effect(
 
 
 def _offset_effect(where: str, channel: str, bounds: tuple[float, float, float]) -> SensorOffset:
-    """The ``sensor_offset`` effect that identifies a sensor's offset beyond its stated one:
-    symmetric about it, as wide as the farther bound."""
+    """The ``sensor_offset`` effect that identifies a sensor's offset beyond its stated one,
+    within the stated bounds (symmetric ones as ``±bound``)."""
     reference, lower, upper = bounds
+    above, below = upper - reference, reference - lower
     try:
-        return SensorOffset(channel=channel, bound=max(reference - lower, upper - reference))
+        if math.isclose(above, below, rel_tol=1e-9):  # (as written in decimal)
+            return SensorOffset(channel=channel, bound=max(above, below))
+        return SensorOffset(channel=channel, bound=above, below=below)
     except ValueError as err:
         raise ArmError(f"{where}: sensor {channel}: {err}") from None
 
@@ -287,8 +290,9 @@ def _sensor_dict(sensor: AbstractSensor) -> dict[str, Any]:
 
 def _effect_dict(effect: AbstractEffect) -> dict[str, Any]:
     own = ("channel",) if isinstance(effect, ChannelEffect) else ()
-    return {"name": effect.name} | {
-        f.name: getattr(effect, f.name) for f in dataclasses.fields(effect) if f.name not in own
+    return {"name": effect.name} | {  # None: a setting left at its default (TOML has no null)
+        f.name: getattr(effect, f.name) for f in dataclasses.fields(effect)
+        if f.name not in own and getattr(effect, f.name) is not None
     }
 
 
@@ -402,6 +406,10 @@ def _drive(table: _Table) -> tuple[AbstractDrive, tuple[DriveGain, ...]]:
     if cls is CommandDrive:
         return _command_drive(table)
     settings = {f.name: table.number(f.name) for f in dataclasses.fields(cls)}
+    for name in getattr(cls, "EFFICIENCIES", ()):
+        if settings[name] > 1:
+            raise table._wrong(name, "a number in (0, 1] (an efficiency: power out over power "
+                                     "in)", table.data[name])
     table.done()
     return cls(**settings), ()
 

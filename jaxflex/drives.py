@@ -109,8 +109,15 @@ class VoltageDrive(AbstractDrive):
     gearbox_efficiency: float = 1.0  # η_g
     motor_efficiency: float = 1.0  # η_m
 
+    EFFICIENCIES: ClassVar[tuple[str, ...]] = ("gearbox_efficiency", "motor_efficiency")
+    """The settings that are efficiencies: power out over power in, in (0, 1]."""
+
     def __check_init__(self) -> None:
         _positive(self)
+        for name in self.EFFICIENCIES:
+            if getattr(self, name) > 1:
+                raise ValueError(f"{self.name} drive: {name}={getattr(self, name)!r} must be "
+                                 "at most 1 (an efficiency: power out over power in)")
 
     @property
     def gain(self) -> float:

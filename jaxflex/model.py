@@ -64,6 +64,11 @@ class Model(eqx.Module):
     description: str = eqx.field(static=True, default=REFERENCE_DESCRIPTION)
 
     def __post_init__(self) -> None:
+        if not (isinstance(self.name, str) and self.name.strip() and self.name.isprintable()):
+            raise TypeError(f"name must be one line of text (the rig's name, written in fits "
+                            f"and reports), got {shown(self.name)}")
+        if not isinstance(self.description, str):
+            raise TypeError(f"description must be text, got {shown(self.description)}")
         if isinstance(self.fixed, str):
             raise TypeError(f"fixed must be a tuple of parameter names, got {self.fixed!r}")
         if not isinstance(self.testbed, Testbed):

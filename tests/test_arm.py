@@ -85,6 +85,13 @@ def test_rotflex_arm_file_holds_the_rig_constants():
         ({"density": "density = 2700.0\nmass = 0.0675"},
          "link.density: give exactly one of density"),
         ({"name": "name = 3"}, "name: expected a string, got 3 (int)"),
+        ({"name": 'name = "strip\\nB"'}, "name must be one line of text (the rig's name, "
+         "written in fits and reports), got 'strip\\nB' (str)"),
+        ({"type": 'type = "voltage"\nresistance = 2.6\ntorque_constant = 0.0077\n'
+                  "back_emf_constant = 0.0077\ngear_ratio = 70\ngearbox_efficiency = 9\n"
+                  "motor_efficiency = 0.69"},
+         "drive.gearbox_efficiency: expected a number in (0, 1] (an efficiency: power out over "
+         "power in), got 9 (int)"),
         ({"top": "effects = ['gravty']"}, "effects[0]: unknown effect 'gravty'"),
     ],
 )
@@ -96,6 +103,20 @@ def test_arm_file_errors_are_one_line_naming_file_and_key(tmp_path, changes, mes
     text = str(info.value)
     assert text.startswith(f"{path}: ") and "\n" not in text
     assert message in text
+
+
+def test_a_rig_in_python_refuses_what_its_file_could_not_hold():
+    """A model whose fit file would be refused on reading is refused when it is made."""
+    with pytest.raises(TypeError, match=r"^name must be one line of text .*, got 5 \(int\)$"):
+        Model(name=5)
+    with pytest.raises(TypeError, match=r"^name must be one line .*, got 'a\\tb' \(str\)$"):
+        Model(name="a\tb")
+    with pytest.raises(TypeError, match=r"^description must be text, got None$"):
+        Model(description=None)
+    with pytest.raises(ValueError, match=r"^voltage drive: motor_efficiency=1.5 must be at most "
+                                         r"1 \(an efficiency: power out over power in\)$"):
+        VoltageDrive(motor_efficiency=1.5)
+    assert Model(name="bench B, 0.4 m strip").name == "bench B, 0.4 m strip"
 
 
 def test_broken_toml_and_missing_file(tmp_path):

@@ -400,6 +400,49 @@ def test_repeated_method_is_refused(tmp_path, capsys):
              tmp_path / "s.json"], capsys, tmp_path, "--methods 'de,de': 'de' given twice")
 
 
+# --- the environment: checked before JAX starts, one line ---------------------------------------
+
+
+def jaxflex_env(args, cwd: Path, **settings: str) -> subprocess.CompletedProcess:
+    """``jaxflex ARGS`` in a fresh process with the environment variables ``settings``."""
+    env = os.environ | {"PYTHONPATH": str(Path(jaxflex.__file__).parent.parent)} | settings
+    return subprocess.run([sys.executable, "-m", "jaxflex", *map(str, args)], cwd=cwd, env=env,
+                          capture_output=True, text=True, timeout=120)
+
+
+@pytest.mark.parametrize("value", ["0", "", "abc", "-1"])
+def test_a_bad_host_device_count_is_one_line(tmp_path, value):
+    done = jaxflex_env(["arms", "list"], tmp_path, JAXFLEX_HOST_DEVICES=value)
+    assert (done.returncode, done.stdout) == (2, "")
+    assert done.stderr.splitlines() == [
+        f"jaxflex arms: error: JAXFLEX_HOST_DEVICES={value!r} must be an integer >= 1 (the CPU "
+        "devices to split populations over; unset it for one per usable core)"]
+
+
+def test_a_host_device_count_beyond_the_machine_is_lowered_with_one_line(tmp_path):
+    from jaxflex._host import host_device_ceiling, usable_cores
+
+    done = jaxflex_env(["arms", "list"], tmp_path, JAXFLEX_HOST_DEVICES="100000")
+    assert done.returncode == 0 and "quanser_rotflex" in done.stdout
+    assert done.stderr.splitlines() == [
+        f"jaxflex arms: warning: JAXFLEX_HOST_DEVICES=100000 is more than this machine can use "
+        f"(its {usable_cores()} usable cores, or 8 at least); using {host_device_ceiling()} CPU "
+        "devices"]
+
+
+@pytest.mark.parametrize(("folder", "problem"), [
+    ("afile", "not a directory"), ("afile/cache", "afile is not a directory")])
+def test_an_unusable_cache_folder_is_one_line(tmp_path, folder, problem):
+    (tmp_path / "afile").write_text("not a folder")
+    env = {"JAX_COMPILATION_CACHE_DIR": "", "JAXFLEX_CACHE_DIR": folder}
+    done = jaxflex_env(["simulate", "--input", "pulse", "--out", "s.csv"], tmp_path, **env)
+    assert (done.returncode, done.stdout) == (2, "")
+    assert done.stderr.splitlines() == [
+        f"jaxflex simulate: error: JAXFLEX_CACHE_DIR={folder}: {problem}; set it to a folder "
+        "this user may write, or to nothing (JAXFLEX_CACHE_DIR=) to keep no compiled programs"]
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["afile"]
+
+
 # --- interruption ---------------------------------------------------------------------------------
 
 
@@ -462,6 +505,53 @@ def test_ctrl_c_that_meets_a_bare_except_still_stops_the_command(tmp_path):
         capture_output=True, text=True, timeout=120, preexec_fn=_default_sigint)
     assert (done.returncode, done.stderr) == (
         130, "jaxflex simulate: interrupted; no partial output was left\n")
+    assert list(tmp_path.iterdir()) == []
+
+
+LONG_COMPILED_CALL = """\
+import sys
+import jax
+from jax import lax
+from matplotlib.figure import Figure
+from jaxflex.cli import main
+
+endless = jax.jit(lambda x: lax.fori_loop(0, 10**12, lambda i, v: v * 0.5 + 1.0, x))
+
+
+def savefig(self, *args, **kwargs):  # the CSV is staged; one compiled call that runs for hours
+    print("calling", flush=True)
+    endless(1.0).block_until_ready()
+
+
+Figure.savefig = savefig
+endless.lower(1.0).compile()
+sys.exit(main(sys.argv[1:]))
+"""
+
+
+@pytest.mark.parametrize(("signum", "status", "word"), [
+    (signal.SIGTERM, 143, "terminated"), (signal.SIGINT, 130, "interrupted")])
+def test_signals_stop_a_long_compiled_call_at_once(tmp_path, signum, status, word):
+    """Python runs a signal handler only between bytecodes, never inside one long XLA call:
+    the command still ends within seconds, with one line, removing the staged output."""
+    env = os.environ | {"PYTHONPATH": str(Path(jaxflex.__file__).parent.parent)}
+    proc = subprocess.Popen(
+        [sys.executable, "-c", LONG_COMPILED_CALL, "simulate", "--input", "pulse",
+         "--duration", "0.1", "--out", "s.csv", "--plot", "s.png"], cwd=tmp_path, env=env,
+        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, preexec_fn=_default_sigint)
+    try:
+        assert proc.stdout.readline() == "calling\n"
+        assert temp_files(tmp_path)  # the CSV is staged
+        time.sleep(1.0)  # inside the call
+        proc.send_signal(signum)
+        start = time.monotonic()
+        _, err = proc.communicate(timeout=30)
+        took = time.monotonic() - start
+    finally:
+        proc.kill()
+    assert proc.returncode == status
+    assert took < 5.0
+    assert err.strip().splitlines() == [f"jaxflex simulate: {word}; no partial output was left"]
     assert list(tmp_path.iterdir()) == []
 
 

@@ -10,7 +10,14 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from jaxflex.parallel import BLOCK, default_host_devices, population_vmap
+from jaxflex._host import host_devices_notice
+from jaxflex.parallel import (
+    BLOCK,
+    MAX_HOST_DEVICES,
+    default_host_devices,
+    population_vmap,
+    usable_cores,
+)
 
 SPLIT_CHECKS = textwrap.dedent(
     """
@@ -97,6 +104,10 @@ def test_device_count_setting_is_validated(monkeypatch):
         default_host_devices()
     monkeypatch.setenv("JAXFLEX_HOST_DEVICES", "5")
     assert default_host_devices() == 5
+    monkeypatch.setenv("JAXFLEX_HOST_DEVICES", "100000")  # would take minutes to start
+    assert default_host_devices() == max(usable_cores(), MAX_HOST_DEVICES)
+    assert host_devices_notice().endswith(f"using {max(usable_cores(), MAX_HOST_DEVICES)} CPU "
+                                          "devices")
 
 
 def test_a_candidates_reductions_do_not_depend_on_how_many_share_its_device():

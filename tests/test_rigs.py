@@ -1,6 +1,9 @@
 """Packaged rigs: arm files inside the package, named wherever an arm file can be given."""
 
 import argparse
+import os
+import subprocess
+import sys
 import tomllib
 from pathlib import Path
 from types import SimpleNamespace
@@ -44,7 +47,9 @@ def test_unknown_names_are_one_line_listing_the_packaged_ones():
     assert str(info.value) == f"xyz: no packaged arm of that name; {KNOWN}"
 
 
-def test_a_path_is_a_path_and_an_existing_file_wins_over_a_name(tmp_path, monkeypatch):
+def test_a_path_is_a_path_and_a_packaged_name_is_the_packaged_rig(tmp_path, monkeypatch):
+    """A file in the working folder named like a packaged rig does not take its place (a
+    warning says how to read it); written as a path, or under another name, the file is read."""
     monkeypatch.chdir(tmp_path)
     for value in ("rigs/reference", "reference.toml", "Reference.TOML"):
         assert not is_arm_name(value) and locate(value) == Path(value)
@@ -52,8 +57,31 @@ def test_a_path_is_a_path_and_an_existing_file_wins_over_a_name(tmp_path, monkey
             load_arm(value)
     own = arm_path("reference").read_text().replace('name = "reference"', 'name = "mine"')
     Path("reference").write_text(own)  # a file in the working folder named like a packaged rig
-    assert not is_arm_name("reference") and load_arm("reference").name == "mine"
+    Path("bench").write_text(own)
+    with pytest.warns(UserWarning, match=r"^reference: the packaged rig of that name, not the "
+                                         r"file reference in this folder; write \./reference "
+                                         r"to read the file$"):
+        assert is_arm_name("reference") and load_arm("reference").name == "reference"
+    assert load_arm("./reference").name == "mine"
+    assert not is_arm_name("bench") and load_arm("bench").name == "mine"
     assert is_arm_name("quanser_rotflex") and load_arm("quanser_rotflex").name == "quanser_rotflex"
+
+
+def test_the_command_line_says_which_rig_a_name_beside_a_file_means(tmp_path):
+    own = arm_path("reference").read_text().replace('name = "reference"', 'name = "mine"')
+    (tmp_path / "quanser_rotflex").write_text(own)
+    env = os.environ | {"PYTHONPATH": str(PACKAGE.parent)}
+    done = subprocess.run(
+        [sys.executable, "-m", "jaxflex", "simulate", "--arm", "quanser_rotflex", "--input",
+         "pulse", "--duration", "0.2", "--out", "s.csv"],
+        cwd=tmp_path, env=env, capture_output=True, text=True, timeout=300)
+    assert done.returncode == 0, done.stderr
+    assert done.stderr.splitlines() == [
+        "jaxflex simulate: warning: quanser_rotflex: the packaged rig of that name, not the file "
+        "quanser_rotflex in this folder; write ./quanser_rotflex to read the file"]
+    lines = (tmp_path / "s.csv").read_text().splitlines()
+    header = next(ln for ln in lines if not ln.startswith("#")).split(",")
+    assert "# rig: quanser_rotflex" in lines and "voltage" in header  # the packaged rig's drive
 
 
 def test_results_record_a_name_as_the_name_and_a_file_as_its_absolute_path(tmp_path, monkeypatch):

@@ -174,3 +174,25 @@ def test_a_record_that_keeps_its_zero_identifies_the_sensors_offset():
     right = objective.residuals(reference_parameters() | {"offset_acc": 0.2})
     wrong = objective.residuals(reference_parameters() | {"offset_acc": 0.0})
     assert np.abs(right).max() < 1e-7 * np.abs(wrong).max()
+
+
+def test_offset_bounds_on_one_side_of_the_stated_offset_are_kept_as_written():
+    """'offset 1 within [0.8, 10]': the offset beyond the stated one is searched in
+    [-0.2, 9], not made symmetric ([-8, 10]), and the rig's file gives the same back."""
+    import tomllib
+
+    from jaxflex.arm import arm_to_toml
+
+    data = _rig(1.0)
+    data["sensors"][1] |= {"rezero": False, "offset": {"reference": 1.0, "lower": 0.8,
+                                                       "upper": 10.0}}
+    arm = arm_from_dict(data)
+    (spec,) = arm.effects[0].parameters
+    assert (spec.lower, spec.upper) == pytest.approx((-0.2, 9.0), abs=1e-12)
+    assert spec.lower <= spec.reference <= spec.upper
+    again = arm_from_dict(tomllib.loads(arm_to_toml(arm)))
+    assert again == arm
+    symmetric = _rig(1.0)
+    symmetric["sensors"][1] |= {"rezero": False, "offset": {"reference": 0.1, "lower": -0.9,
+                                                            "upper": 1.1}}
+    assert arm_from_dict(symmetric).effects[0].below is None  # as before: ±1

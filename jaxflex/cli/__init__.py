@@ -113,13 +113,14 @@ def main(argv: Sequence[str] | None = None) -> int:
         print("jaxflex: interrupted", file=sys.stderr)
         return EXIT_INTERRUPTED
     args.argv = argv  # what a command that starts copies of itself passes on
-    use_persistent_cache()
     prefix = f"jaxflex {args.command}"
     restore = _on_signals(prefix)
     format_warning = warnings.formatwarning
     try:
         warnings.formatwarning = one_line_warning(prefix)
         with warnings.catch_warnings():  # registries anew: a second run warns as the first
+            check_environment()
+            use_persistent_cache()
             return int(args.func(args) or 0)
     except KeyboardInterrupt:
         print(f"{prefix}: interrupted; no partial output was left", file=sys.stderr)
@@ -142,7 +143,8 @@ def use_persistent_cache() -> None:
     program however quickly it compiled (JAX's default keeps those over 1 s: a run compiles a
     couple of hundred small ones, several seconds together, that a second run would compile
     again). JAX's own ``JAX_COMPILATION_CACHE_DIR`` wins when set; nothing changes once JAX
-    has compiled."""
+    has compiled. A ``$JAXFLEX_CACHE_DIR`` that cannot be written is refused in one line (JAX
+    would warn at every program); an unwritable default folder means no cache."""
     import os
     from pathlib import Path
 
@@ -154,17 +156,51 @@ def use_persistent_cache() -> None:
     if folder is None:
         base = os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache"
         folder = str(Path(base) / "jaxflex")
+        if _unwritable_folder(Path(folder)):
+            return  # no cache rather than one warning from JAX per program it compiles
+    elif folder and (problem := _unwritable_folder(Path(folder))):
+        raise ValueError(
+            f"JAXFLEX_CACHE_DIR={folder}: {problem}; set it to a folder this user may write, "
+            "or to nothing (JAXFLEX_CACHE_DIR=) to keep no compiled programs"
+        )
     if folder:
         jax.config.update("jax_compilation_cache_dir", folder)
         if "JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS" not in os.environ:
             jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.0)
 
 
+def check_environment() -> None:
+    """Refuse, before JAX starts, an environment variable of jaxflex's that it cannot use
+    (``JAXFLEX_HOST_DEVICES``: :func:`jaxflex._host.default_host_devices`)."""
+    from jaxflex._host import default_host_devices
+
+    default_host_devices()
+
+
+def _unwritable_folder(folder) -> str | None:
+    """Why ``folder`` cannot be created or written, or None; creates nothing."""
+    import os
+
+    existing = folder
+    while not existing.exists() and existing != existing.parent:
+        existing = existing.parent
+    if not existing.is_dir():
+        return f"{existing} is not a directory" if existing != folder else "not a directory"
+    if not os.access(existing, os.W_OK | os.X_OK):
+        return "not writable" if existing == folder else f"{existing} is not writable"
+    return None
+
+
 def _on_signals(prefix: str):
     """On SIGINT or SIGTERM remove the temporary files, say so in one line and exit 130 or 143
     at once (main thread only): an exception could meet a bare ``except:`` in a library and be
     lost (JAX's tracing has several), and the command would go on to write its outputs.
-    Returns the undo."""
+    Python runs a handler only between two bytecodes of the main thread, never while one
+    compiled call runs (a large rig's simulation can take minutes): a watcher thread, woken by
+    the signal itself (:func:`signal.set_wakeup_fd`; XLA lets other threads run), ends the
+    process when the main thread has not done so within :data:`SIGNAL_GRACE_S` (unless a
+    handler of the command's own, such as the launcher's of ``--processes``, replaced this
+    one). Returns the undo."""
     import os
     import threading
 
@@ -174,20 +210,48 @@ def _on_signals(prefix: str):
         return lambda: None
     endings = {signal.SIGINT: ("interrupted", EXIT_INTERRUPTED),
                signal.SIGTERM: ("terminated", EXIT_TERMINATED)}
+    ending = threading.Lock()  # one ending, by whichever thread gets there first
 
-    def handler(signum, frame):
+    def end(signum: int) -> None:
+        ending.acquire()
         remove_temporaries()
         word, status = endings[signum]
         print(f"{prefix}: {word}; no partial output was left", file=sys.stderr, flush=True)
         os._exit(status)
 
+    def handler(signum, frame):
+        end(signum)
+
     previous = {signum: signal.signal(signum, handler) for signum in endings}
+    woken, wake = os.pipe()
+    os.set_blocking(wake, False)
+    previous_wakeup = signal.set_wakeup_fd(wake, warn_on_full_buffer=False)
+
+    def watch() -> None:
+        import time
+
+        while data := os.read(woken, 64):  # empty: the command ended, the pipe is closed
+            for signum in data:
+                if signum in endings:
+                    time.sleep(SIGNAL_GRACE_S)  # the main thread's handler, when it can run
+                    if signal.getsignal(signum) is handler:
+                        end(signum)
+        os.close(woken)
+
+    threading.Thread(target=watch, name="jaxflex-signals", daemon=True).start()
 
     def restore() -> None:
+        signal.set_wakeup_fd(previous_wakeup)
+        os.close(wake)
         for signum, replaced in previous.items():
             signal.signal(signum, replaced)
 
     return restore
+
+
+SIGNAL_GRACE_S = 0.25
+"""Seconds a signal waits for the main thread's handler before the watcher thread ends the
+command (the main thread may be inside one long compiled call)."""
 
 
 if __name__ == "__main__":

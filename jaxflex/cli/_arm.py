@@ -123,14 +123,21 @@ def ready_records(model: Model, records, windows: list[Window], *, say: bool = T
 def rig_settings(model: Model, source: str | None, records, windows: list[Window]) -> dict:
     """What a result records of its rig: its name, the arm file it was read from (absolute;
     for information: the result carries the rig itself) and each record's window."""
-    where = None if source is None or not Path(source).is_file() else str(Path(source).resolve())
+    where = str(Path(source).resolve()) if _read_file(source) else None
     return {"rig": model.name, "arm": where or source,
             "windows": {r.name: w for r, w in zip(records, windows, strict=True)}}
 
 
 def arm_inputs(source: str | None) -> list[str]:
     """The arm file among a command's inputs (outputs may not replace it)."""
-    return [source] if source is not None and Path(source).is_file() else []
+    return [source] if _read_file(source) else []
+
+
+def _read_file(source: str | None) -> bool:
+    """Whether ``--arm source`` was read from a file (not a packaged rig's name)."""
+    from jaxflex.rigs import is_arm_name
+
+    return source is not None and not is_arm_name(source) and Path(source).is_file()
 
 
 def refuse_two_link(records) -> None:

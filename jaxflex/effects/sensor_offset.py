@@ -31,6 +31,10 @@ class SensorOffset(ChannelEffect):
     """
 
     bound: float = eqx.field(static=True, default=0.0)  # 0: the channel's DEFAULT_BOUNDS
+    below: float | None = eqx.field(static=True, default=None)
+    """The largest offset below zero when it differs from the largest above (``bound``, then
+    taken as it is, 0 included): an arm file's offset bounds that are not symmetric about the
+    stated offset. None: ``±bound``."""
 
     key: ClassVar[str] = "sensor_offset"
     description: ClassVar[str] = (
@@ -47,18 +51,28 @@ class SensorOffset(ChannelEffect):
         super().__check_init__()
         if not (isinstance(self.bound, (int, float)) and self.bound >= 0):
             raise ValueError(f"{self.name}: bound={self.bound!r} must be a number >= 0")
-        if not self.bound and self.channel not in DEFAULT_BOUNDS:
+        if self.below is not None:
+            if not (isinstance(self.below, (int, float)) and self.below >= 0
+                    and self.below + self.bound > 0):
+                raise ValueError(f"{self.name}: below={self.below!r} must be a number >= 0, "
+                                 "and with bound a range of some width")
+        elif not self.bound and self.channel not in DEFAULT_BOUNDS:
             raise ValueError(f"{self.name}: give its bound (the largest offset, in the "
                              f"channel's unit): {self.channel!r} has no default")
 
     def spec(self) -> ParameterSpec:
-        bound = self.bound or DEFAULT_BOUNDS[self.channel]
+        if self.below is None:
+            upper = self.bound or DEFAULT_BOUNDS[self.channel]
+            lower, reference = -upper, 0.2 * upper
+        else:
+            upper, lower = float(self.bound), -float(self.below)
+            reference = 0.2 * (upper if upper >= -lower else lower)  # on the wider side
         return ParameterSpec(
             f"offset_{self.channel}",
             self.unit,
-            lower=-bound,
-            upper=bound,
-            reference=0.2 * bound,
+            lower=lower,
+            upper=upper,
+            reference=reference,
             description=f"constant offset of the {self.channel} sensor",
             log_scale=False,
             null=0.0,

@@ -5,8 +5,10 @@ for the format), installed with the package so that a rig can be named wherever 
 be given. ``jaxflex arms list`` lists them and ``jaxflex arms show NAME > my_rig.toml`` starts a
 file of one's own from one of them.
 
-A value given for an arm (:func:`locate`) is a path when it is an existing file, or when it has
-a path separator or ends in ``.toml``; anything else names a packaged rig.
+A value given for an arm (:func:`locate`) is a path when it has a path separator or ends in
+``.toml``, or when it is an existing file whose name no packaged rig has; anything else names a
+packaged rig. A packaged rig's bare name means the packaged rig even beside a file of that name
+(a warning says so, and how to read the file: ``./NAME``).
 """
 
 from __future__ import annotations
@@ -39,12 +41,12 @@ def arm_path(name: str) -> Path:
 
 
 def is_arm_name(value: str | os.PathLike) -> bool:
-    """Whether ``value`` names a packaged arm rather than a file: it is not an existing file,
-    has no path separator and does not end in ``.toml``."""
+    """Whether ``value`` names a packaged arm rather than a file: it has no path separator,
+    does not end in ``.toml``, and is a packaged arm's name or no existing file."""
     text = os.fspath(value)
     separators = {os.sep, os.altsep or os.sep, "/"}
-    return (not os.path.isfile(text) and not any(s in text for s in separators)
-            and not text.lower().endswith(SUFFIX))
+    return (not any(s in text for s in separators) and not text.lower().endswith(SUFFIX)
+            and (text in packaged_arms() or not os.path.isfile(text)))
 
 
 def locate(value: str | os.PathLike) -> Path:
@@ -52,6 +54,11 @@ def locate(value: str | os.PathLike) -> Path:
     if not is_arm_name(value):
         return Path(value)
     name = os.fspath(value)
+    if name in packaged_arms() and os.path.isfile(name):
+        import warnings
+
+        warnings.warn(f"{name}: the packaged rig of that name, not the file {name} in this "
+                      f"folder; write ./{name} to read the file", stacklevel=2)
     if name not in packaged_arms():
         raise _unknown(name, "neither an arm file nor a packaged arm",
                        f"; a file's path needs a '/' or the suffix {SUFFIX}")
