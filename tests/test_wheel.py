@@ -115,6 +115,7 @@ def test_the_wheel_installs_and_runs_the_real_data_commands_outside_the_checkout
         assert set(row["nrmse"]) == {"joint_angle", "deflection_angle"}
         assert all(math.isfinite(v) and v > 0 for v in row["nrmse"].values()), row
     _an_invented_rig_end_to_end(jaxflex, work, env)
+    _a_users_strip_with_default_options(jaxflex, work, env)
 
 
 RULER = """\
@@ -184,3 +185,93 @@ def _an_invented_rig_end_to_end(jaxflex: list[str], work: Path, env: dict) -> No
     assert figures == ["frf.png", "ruler_log_time.png"]
     channels = json.loads((work / "ruler_report" / "comparison.json").read_text())["channels"]
     assert channels == {"angle": "rad", "acc": "m/s^2"}
+
+
+STRIP = """\
+# An aluminium strip on a DC motor behind a voltage amplifier: a 2048-count encoder on the hub,
+# a strain gauge near the clamp and an accelerometer short of the tip.
+name = "alu_strip"
+description = "0.5 m aluminium strip, voltage-driven hub, strain gauge and accelerometer"
+
+[link]
+length = 0.5
+width = 0.03
+thickness = 0.002
+density = 2700.0
+
+[simulation]
+n_elements = 6
+
+[sampling]
+dt = 0.002
+duration = 2.0
+
+[parameters]
+E = { reference = 7.0e10, lower = 4.0e10, upper = 1.0e11 }
+J_h = { reference = 0.003, lower = 5e-4, upper = 2e-2 }
+b_v = { reference = 0.01, lower = 1e-4, upper = 0.1 }
+tau_c = { reference = 0.02, lower = 1e-3, upper = 0.1 }
+alpha = { reference = 0.5, fixed = true }
+beta = { reference = 1e-4, fixed = true }
+
+[drive]
+type = "voltage"
+resistance = 2.0
+torque_constant = 0.02
+back_emf_constant = 0.02
+gear_ratio = 20.0
+gearbox_efficiency = 0.9
+motor_efficiency = 0.8
+
+[[sensors]]
+type = "encoder"
+channel = "hub"
+counts_per_revolution = 2048
+
+[[sensors]]
+type = "strain_gauge"
+channel = "gauge"
+x = 0.05
+noise = 2e-6
+
+[[sensors]]
+type = "accelerometer"
+channel = "acc"
+x = 0.4
+noise = 0.05
+"""
+
+
+def _a_users_strip_with_default_options(jaxflex: list[str], work: Path, env: dict) -> None:
+    """A newcomer's rig on the default options of each command, which are what a first hour
+    runs: what ``simulate`` writes (its default rest, its default input amplitude), ``identify``
+    reads without a window or a rest option, ``validate`` compares, and ``discover`` finds
+    nothing to add to the right model. Only the search budgets are cut, to the test's time."""
+    (work / "strip.toml").write_text(STRIP)
+    for name, seed in (("chirp", 1), ("multisine", 2)):
+        printed = _run([*jaxflex, "simulate", "--arm", "strip.toml", "--input", name,
+                        "--add-noise", "--seed", str(seed), "--out", f"strip_{name}.csv"],
+                       work, env)
+        assert f"strip_{name}.csv" in printed
+    _run([*jaxflex, "identify", "strip_chirp.csv", "--arm", "strip.toml", "--generations",
+          "12", "--population", "16", "--quiet", "--out", "strip_fit.json", "--plot",
+          "strip_fit.png"], work, env)
+    fit = json.loads((work / "strip_fit.json").read_text())
+    assert fit["names"] == ["E", "J_h", "b_v", "tau_c"]
+    assert fit["settings"]["channels"] == ["hub", "gauge", "acc"]
+    for name, true in (("E", 7.0e10), ("J_h", 0.003)):
+        lo, hi = fit["intervals"][name]
+        assert abs(fit["params"][name] / true - 1) < 0.05, (name, fit["params"][name])
+        assert lo < fit["params"][name] < hi
+    assert (work / "strip_fit_strip_chirp.png").is_file()
+    _run([*jaxflex, "validate", "strip_chirp.csv", "strip_multisine.csv", "--fit",
+          "strip_fit.json", "--json", "strip_table.json", "--report", "strip_report"], work, env)
+    rows = json.loads((work / "strip_table.json").read_text())["records"]
+    assert [(r["name"], r["role"]) for r in rows] == [("strip_chirp", "fit"),
+                                                       ("strip_multisine", "held-out")]
+    assert all(0 < v < 20 for r in rows for v in r["nrmse"].values()), rows
+    _run([*jaxflex, "discover", "strip_chirp.csv", "--holdout", "strip_multisine.csv",
+          "--arm", "strip.toml", "--initial", "strip_fit.json", "--quiet", "--json",
+          "strip_discover.json"], work, env)
+    found = json.loads((work / "strip_discover.json").read_text())
+    assert found["steps"][-1]["effects"] == [], [s["added"] for s in found["steps"]]
