@@ -104,8 +104,10 @@ def ready_records(model: Model, records, windows: list[Window], *, say: bool = T
     (:func:`jaxflex.measured.prepare`; not ``at_rest``: records that start in motion), with
     command-line errors; for a rig with sensors, one line per record says which of them it
     holds (unless not ``say``)."""
-    from jaxflex.measured import logged_sensors, prepare
+    from jaxflex.measured import check_rate, logged_sensors, prepare
 
+    for record in records:
+        _speaking_cli(check_rate, model, record)
     ready = _speaking_cli(prepare, model, list(records), windows, at_rest=at_rest)
     for record, window in zip(records, windows, strict=True) if model.sensors and say else ():
         found = logged_sensors(model, record)
