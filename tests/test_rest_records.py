@@ -153,6 +153,9 @@ def test_simulate_on_a_rig_writes_records_that_start_at_rest(tmp_path, capsys):
     for shape, record in records.items():
         ready = model_record(ARM, record)  # does not raise
         assert ready.channel("angle")[0] == 0.0, shape
+        window = resolve_window(Window("auto", auto=True), record, rest_bands(ARM.sensors, record),
+                                rest_span(ARM))
+        assert window == (0.0, 0.5), shape  # from its first sample, the rest it holds
     # the same pulse without its header's word moves from its first sample: refused
     bare = records["pulse"].replace(metadata={})
     with pytest.raises(ValueError, match=r"^record 'pulse' does not start at rest at t = 0 s: "):
