@@ -156,7 +156,7 @@ class Encoder(AbstractSensor):
     Its resolution is one count, ``2π/counts_per_revolution``, unless given (0: ideal). A
     channel declared in another angle unit (``reading_unit``: ``"counts"``, ``"mrad"``,
     ``"deg"``, :data:`ANGLE_UNITS`) is converted: the gain becomes that unit per rad and the
-    resolution one count in it (a gain given must be that one).
+    resolution one count in it (a gain given must be that one, to 0.1 %).
     """
 
     kind: ClassVar[str] = "encoder"
@@ -175,8 +175,8 @@ class Encoder(AbstractSensor):
         if self.resolution is None:
             object.__setattr__(self, "resolution",
                                2 * math.pi / self.counts_per_revolution * (scale or 1.0))
-        if scale is None or self.gain == scale:
-            return
+        if scale is None or math.isclose(self.gain, scale, rel_tol=1e-3):
+            return  # nothing to convert, or converted by the gain given
         if self.gain != 1.0:
             raise ValueError(
                 f"encoder {self.channel}: gain={self.gain!r} but reading_unit "
