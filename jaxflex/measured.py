@@ -175,6 +175,53 @@ def channel_notes(model: Model, records: Sequence[Record]) -> list[str]:
     return notes
 
 
+MAX_RATE_RATIO = 10.0
+"""A record sampled this many times more slowly than its rig's ``sampling.dt`` or more is in
+other time units (sample numbers, ms): a rig's log is at its rate or faster."""
+
+
+def check_rate(model: Model, record: Record) -> None:
+    """Stop (one-line ValueError) on a record whose samples lie :data:`MAX_RATE_RATIO` times
+    the rig's ``sampling.dt`` apart or more: its time is in sample numbers or ms, or the rig
+    file states another rate than the one it logs at."""
+    dt, step = model.testbed.dt, record.dt
+    if step >= MAX_RATE_RATIO * dt:
+        raise ValueError(
+            f"record {record.name!r}: its samples are {step:.6g} s apart, {step / dt:.3g} times "
+            f"the sampling.dt of {dt:g} s of rig {model.name!r}; is its time in sample numbers "
+            "or ms? time must be in s (or give the rig file the sampling.dt it logs at)"
+        )
+
+
+MAX_COUNT_RATIO = 20.0
+"""An encoder's channel whose smallest step is this many of its counts or more is in another
+unit: counts (``counts_per_revolution/2π`` of them), mrad (1000), degrees (57.3)."""
+
+
+def _check_counts(name: str, sensor: Encoder, reading: np.ndarray) -> None:
+    """Stop (one-line ValueError) on an encoder's channel that moves only in steps of
+    :data:`MAX_COUNT_RATIO` counts or more: it is logged in another unit than its rig declares,
+    and the likeliest one is named."""
+    steps = np.abs(np.diff(reading))
+    steps = steps[steps > 0]
+    if not (sensor.resolution > 0 and steps.size):
+        return
+    ratio = float(np.min(steps)) / sensor.resolution
+    if ratio < MAX_COUNT_RATIO:
+        return
+    per_rad = sensor.gain  # the declared unit per rad
+    units = {"counts": sensor.counts_per_revolution / (2 * np.pi), "mrad": 1e3,
+             "deg": 180 / np.pi}
+    guess = min(units, key=lambda u: abs(np.log(ratio * per_rad / units[u])))
+    unit = sensor.channel_unit
+    raise ValueError(
+        f"record {name!r}: channel {sensor.channel!r} moves in steps of {float(np.min(steps)):.6g}"
+        f", {ratio:.3g} of the encoder's counts of {sensor.resolution:.3g} {unit}; is it in "
+        f"{guess}? the rig reads it in {unit}: declare the encoder's reading_unit = {guess!r} "
+        "in the rig file (its gain and resolution follow)"
+    )
+
+
 MAX_STRAIN = 0.01
 """A bending strain above 1 % is not an elastic link's (steel yields near 0.2 %): µε or %."""
 MAX_DEFLECTION_ANGLE = 1.0
@@ -199,6 +246,9 @@ def _check_scale(model: Model, name: str, sensor: AbstractSensor, reading: np.nd
             quantity > MAX_DEFLECTION_ANGLE):
         why = (f"a deflection angle above {MAX_DEFLECTION_ANGLE:g} rad; is it in mrad or "
                "degrees? a deflection angle must be in rad")
+    elif isinstance(sensor, Encoder):
+        _check_counts(name, sensor, reading)
+        return
     else:
         return
     unit = "" if sensor.unit == "1" else f" {sensor.unit}"
@@ -338,5 +388,6 @@ def logged_record(
                                metadata={"rig": model.name} | dict(metadata or {}))
 
 
-__all__ = ["REST_SPAN", "channel_notes", "fit_noise", "load_records", "logged_record",
-           "logged_sensors", "logged_units", "model_record", "prepare", "rest_span", "validate"]
+__all__ = ["MAX_RATE_RATIO", "REST_SPAN", "channel_notes", "check_rate", "fit_noise",
+           "load_records", "logged_record", "logged_sensors", "logged_units", "model_record",
+           "prepare", "rest_span", "validate"]

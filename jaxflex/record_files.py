@@ -59,7 +59,8 @@ def load_record(
     unless ``resample=True``, which interpolates all columns linearly onto a grid with the median
     step (with a :class:`RecordWarning` that names the longest gap). Columns whose units look wrong
     (time in ms, angle in degrees, torque far off scale; :func:`check_units`) are an error
-    unless ``unit_check=False``.
+    unless ``unit_check=False``; a rig's own channels are in the units its rig declares, and
+    the rig checks them (:func:`jaxflex.measured.model_record`).
     """
     path = Path(path)
     suffix = _suffix(path)
@@ -87,9 +88,9 @@ def load_record(
             stacklevel=2,
         )
     _check_uniform(columns["time"], where, row, hint="; pass resample=True to resample it")
-    _check_excitation_and_units(columns, where)
-    if unit_check:
-        check_units(columns, where)
+    _check_excitation_and_units(columns, where, own)
+    if unit_check:  # a rig's own channels are in the units its rig declares, checked there
+        check_units({c: a for c, a in columns.items() if c not in own}, where)
     extras = {c: a for c, a in columns.items() if c not in REQUIRED_COLUMNS}
     return Record(
         **{c: columns.get(c) for c in REQUIRED_COLUMNS},

@@ -150,10 +150,18 @@ class AbstractSensor(eqx.Module):
         return model.stations.index(self.position)
 
 
+ANGLE_UNITS: dict[str, float] = {"rad": 1.0, "mrad": 1e3, "deg": 180.0 / math.pi}
+"""The angle units an encoder's channel may be declared in (``reading_unit``), per rad; and
+``"counts"``, ``counts_per_revolution / 2π`` per rad."""
+
+
 class Encoder(AbstractSensor):
     """Joint angle (rad) from an incremental encoder of ``counts_per_revolution``.
 
-    Its resolution is one count, ``2π/counts_per_revolution``, unless given (0: ideal).
+    Its resolution is one count, ``2π/counts_per_revolution``, unless given (0: ideal). A
+    channel declared in another angle unit (``reading_unit``: ``"counts"``, ``"mrad"``,
+    ``"deg"``, :data:`ANGLE_UNITS`) is converted: the gain becomes that unit per rad and the
+    resolution one count in it (a gain given must be that one, to 0.1 %).
     """
 
     kind: ClassVar[str] = "encoder"
@@ -168,8 +176,26 @@ class Encoder(AbstractSensor):
                 f"encoder {self.channel}: counts_per_revolution={self.counts_per_revolution!r} "
                 "must be a positive whole number"
             )
+        scale = self.angle_scale
         if self.resolution is None:
-            object.__setattr__(self, "resolution", 2 * math.pi / self.counts_per_revolution)
+            object.__setattr__(self, "resolution",
+                               2 * math.pi / self.counts_per_revolution * (scale or 1.0))
+        if scale is None or math.isclose(self.gain, scale, rel_tol=1e-3):
+            return  # nothing to convert, or converted by the gain given
+        if self.gain != 1.0:
+            raise ValueError(
+                f"encoder {self.channel}: gain={self.gain!r} but reading_unit "
+                f"{self.reading_unit!r} is {scale:.9g} per rad; leave the gain out"
+            )
+        object.__setattr__(self, "gain", scale)
+
+    @property
+    def angle_scale(self) -> float | None:
+        """The declared reading unit per rad (None: no angle unit declared, or one that a
+        gain converts, such as ``"V"``)."""
+        if self.reading_unit == "counts":
+            return self.counts_per_revolution / (2 * math.pi)
+        return ANGLE_UNITS.get(self.reading_unit) if self.reading_unit != "rad" else None
 
     def quantity(self, model: Model, outputs: Outputs) -> Array:
         return outputs.joint_angle

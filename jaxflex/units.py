@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import math
 import warnings
-from collections.abc import Mapping
+from collections.abc import Collection, Mapping
 
 import numpy as np
 
@@ -19,14 +19,17 @@ from jaxflex.records import INPUT_COLUMNS, RecordError, RecordWarning
 _DEGREE_LIMIT = 8 * math.pi  # four turns: more than that from a one-link arm suggests degrees
 
 
-def _check_excitation_and_units(columns: Mapping[str, np.ndarray], where: str) -> None:
-    """Refuse an input that is zero throughout; warn about a joint angle that looks like degrees."""
+def _check_excitation_and_units(columns: Mapping[str, np.ndarray], where: str,
+                                own: Collection[str] = ()) -> None:
+    """Refuse an input that is zero throughout; warn about a joint angle that looks like degrees
+    (unless it is a rig's channel, ``own``: the rig declares its unit and checks it,
+    :func:`jaxflex.measured.model_record`)."""
     source = next(c for c in INPUT_COLUMNS if c in columns)
     if not np.any(columns[source]):
         raise RecordError(
             f"{where}: column {source!r} is zero in every row; nothing excites the arm"
         )
-    if "joint_angle" not in columns:
+    if "joint_angle" not in columns or "joint_angle" in own:
         return
     angle = columns["joint_angle"]
     peak = float(np.max(np.abs(angle)))

@@ -19,6 +19,7 @@ import pytest
 from helpers import REAL_DATA_DIR, or_skip
 
 import jaxflex.datasets as datasets
+from jaxflex.arm import load_arm
 from jaxflex.cli import main
 from jaxflex.data import load_record
 
@@ -163,7 +164,8 @@ def test_download_of_the_published_files(mirror, tmp_path):
     cached = tmp_path / "cache" / "daisy_robot_arm" / "robot_arm_dat.mat"
     assert cached.read_bytes() == files["robot_arm_dat.mat"].read_bytes()
     assert record.columns == ("time", "torque", "acceleration") and record.n_samples == 1024
-    assert record.dt == 1.0 and "sampling period unpublished" in record.metadata["channels"]
+    assert record.dt == pytest.approx(load_arm("daisy_robot_arm").testbed.dt, rel=1e-12)
+    assert "the sampling period is unpublished" in record.metadata["channels"]
     shutil.rmtree(mirror / source.repository)  # now served from the cache alone
     assert datasets.load("daisy_robot_arm")["sweep"].n_samples == 1024
 

@@ -153,6 +153,9 @@ def test_simulate_on_a_rig_writes_records_that_start_at_rest(tmp_path, capsys):
     for shape, record in records.items():
         ready = model_record(ARM, record)  # does not raise
         assert ready.channel("angle")[0] == 0.0, shape
+        window = resolve_window(Window("auto", auto=True), record, rest_bands(ARM.sensors, record),
+                                rest_span(ARM))
+        assert window == (0.0, 0.5), shape  # from its first sample, the rest it holds
     # the same pulse without its header's word moves from its first sample: refused
     bare = records["pulse"].replace(metadata={})
     with pytest.raises(ValueError, match=r"^record 'pulse' does not start at rest at t = 0 s: "):
@@ -279,3 +282,103 @@ def test_auto_refuses_a_link_ringing_before_its_input():
     still = bench_record(acc - ring, torque, name="still")
     t0, _ = resolve_window(Window("auto", auto=True), still, bands, period)
     assert t0 == pytest.approx(13.0 - period, abs=2 * DT)
+
+
+# -- a rig's rate against its records' -------------------------------------------------------
+
+
+def test_a_record_in_sample_numbers_is_refused_against_the_rig_s_rate(tmp_path, capsys):
+    """Time in sample numbers, the unit check skipped: the rig's sampling.dt says what is
+    wrong before any fit starts (it fitted at dt = 1 s before)."""
+    rig = tmp_path / "lab_strip.toml"
+    rig.write_text(LAB_STRIP)
+    n = 300
+    rows = [f"{i},{0.2 * (i >= 50):.6g},{137 * COUNT:.9g},{0.01 * (i >= 50) * (i - 50):.7g}"
+            for i in range(n)]
+    data = tmp_path / "numbered.csv"
+    data.write_text("time,torque,angle,acc\n" + "\n".join(rows) + "\n")
+    assert main(["identify", str(data), "--arm", str(rig), "--no-unit-check",
+                 "--out", str(tmp_path / "fit.json")]) == 2
+    assert capsys.readouterr().err == (
+        "jaxflex identify: error: record 'numbered': its samples are 1 s apart, 1e+03 times the "
+        "sampling.dt of 0.001 s of rig 'lab_strip'; is its time in sample numbers or ms? time "
+        "must be in s (or give the rig file the sampling.dt it logs at)\n")
+    assert not (tmp_path / "fit.json").exists()
+
+
+def test_the_daisy_record_is_at_its_packaged_rig_s_rate():
+    from helpers import REAL_DATA_DIR, or_skip
+
+    from jaxflex import datasets
+    from jaxflex.arm import load_arm
+    from jaxflex.measured import check_rate
+
+    sweep = or_skip(datasets.load, "daisy_robot_arm", REAL_DATA_DIR)["sweep"]
+    arm = load_arm("daisy_robot_arm")
+    assert sweep.dt == pytest.approx(arm.testbed.dt, rel=1e-12)
+    check_rate(arm, sweep)  # agrees
+    with pytest.raises(ValueError, match=r"its samples are 1 s apart, 100 times the sampling"):
+        check_rate(arm, sweep.replace(time=np.arange(sweep.n_samples, dtype=np.float64)))
+
+
+# -- an encoder's unit ------------------------------------------------------------------------
+
+
+def encoder_log(tmp_path, values, digits=9):
+    """A CSV of the lab strip's log with the encoder column ``joint_angle`` as given."""
+    n = values.size
+    torque = [0.2 * (i >= 100) for i in range(n)]
+    acc = [0.01 * max(0, i - 100) for i in range(n)]
+    rows = [f"{i * DT:.6f},{u:.6g},{a:.{digits - 1}e},{y:.7g}"
+            for i, (u, a, y) in enumerate(zip(torque, values, acc, strict=True))]
+    path = tmp_path / "encoder.csv"
+    path.write_text("time,torque,joint_angle,acc\n" + "\n".join(rows) + "\n")
+    return path
+
+
+def encoder_rig(unit=None, gain=None):
+    data = tomllib.loads(LAB_STRIP)
+    data["sensors"][0]["channel"] = "joint_angle"
+    if unit is not None:
+        data["sensors"][0]["reading_unit"] = unit
+    if gain is not None:
+        data["sensors"][0]["gain"] = gain
+    return arm_from_dict(data, "lab_strip.toml")
+
+
+def turning(n=600):
+    """Whole counts of a 2000-count encoder: 137 at rest, then turning ever faster."""
+    i = np.arange(n)
+    return 137 + np.floor(0.002 * np.clip(i - 110, 0, None) ** 2)
+
+
+def test_an_encoder_declared_in_counts_is_converted_and_read_without_a_warning(tmp_path):
+    import warnings
+
+    arm = encoder_rig("counts")
+    encoder = arm.sensor("joint_angle")
+    assert encoder.gain == pytest.approx(2000 / (2 * math.pi)) and encoder.resolution == 1.0
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # "holds only whole numbers ... encoder counts" before
+        record = load_record(encoder_log(tmp_path, turning()), channels=arm.channels)
+    ready = model_record(arm, record)
+    np.testing.assert_array_equal(ready.channel("joint_angle"), turning() - 137)
+    with pytest.raises(ValueError, match=r"gain=3.0 but reading_unit 'counts' is 318.30988"):
+        encoder_rig("counts", gain=3.0)
+    assert encoder_rig("mrad").sensor("joint_angle").gain == 1e3
+
+
+@pytest.mark.parametrize(("scale", "guess"), [(2000 / (2 * math.pi), "counts"), (1e3, "mrad")])
+def test_an_encoder_logged_in_another_unit_than_its_rig_declares_is_refused(
+        tmp_path, scale, guess):
+    """The rig says rad; the log is in counts, or in mrad: refused, naming the likely unit, and
+    before the rest check (in counts the arm looks far from still)."""
+    arm = encoder_rig()
+    values = turning() * COUNT * scale  # the same motion in the other unit
+    record = load_record(encoder_log(tmp_path, values), channels=arm.channels)
+    with pytest.raises(ValueError, match=(
+            rf"^record 'encoder': channel 'joint_angle' moves in steps of .*; is it in {guess}\? "
+            rf"the rig reads it in rad: declare the encoder's reading_unit = '{guess}'")):
+        model_record(arm, record)
+    rad = load_record(encoder_log(tmp_path, turning() * COUNT), channels=arm.channels)
+    model_record(arm, rad)  # in rad, as declared: read

@@ -107,8 +107,10 @@ def ready_records(model: Model, records, windows: list[Window], *, say: bool = T
     which of its columns are ignored (unless not ``say``)."""
     import warnings
 
-    from jaxflex.measured import channel_notes, logged_sensors, prepare
+    from jaxflex.measured import channel_notes, check_rate, logged_sensors, prepare
 
+    for record in records:
+        _speaking_cli(check_rate, model, record)
     ready = _speaking_cli(prepare, model, list(records), windows, at_rest=at_rest)
     for record, window in zip(records, windows, strict=True) if model.sensors and say else ():
         found = logged_sensors(model, record)

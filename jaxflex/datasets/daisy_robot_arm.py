@@ -1,9 +1,11 @@
 """DaISy 96-009, a flexible robot arm: reaction torque in, arm acceleration out.
 
 1024 samples of a periodic sine sweep in periodic steady state (not from rest). The sampling
-period, the units, the geometry and the accelerometer's position are not published, so the
-record's time counts samples (``dt = 1``) and both channels are in raw units: a model of it needs
-the time scale and a sensor gain identified, and it holds no joint angle.
+period, the units, the geometry and the accelerometer's position are not published: the
+record's time is the sample index times :data:`ASSUMED_DT`, the period the packaged rig
+``daisy_robot_arm`` assumes (so that the record and the rig agree), and both channels are in
+raw units: a model of it needs the time scale and a sensor gain identified, and it holds no
+joint angle.
 """
 
 from __future__ import annotations
@@ -41,8 +43,13 @@ SOURCE = Source(
 )
 """Origin of the record: repository at a pinned commit, files with SHA-256, licence."""
 
+ASSUMED_DT = 0.01
+"""Seconds between samples, assumed (unpublished): the packaged rig's ``sampling.dt``, chosen
+so that the record's first resonance lands near its strip's first free-hub mode."""
+
 RECORDS: dict[str, str] = {
-    "sweep": "periodic sine sweep, 1024 samples; time in samples (period unpublished)",
+    "sweep": f"periodic sine sweep, 1024 samples; {ASSUMED_DT:g} s apart, assumed (period "
+             "unpublished)",
 }
 """The records of this data set by name, with what each holds."""
 
@@ -56,7 +63,7 @@ def convert(files: dict[str, Path]) -> dict[str, Record]:
     if data.ndim != 2 or data.shape[1] != 2:
         raise DatasetError(f"{path}: 'robot_arm_dat' must be an n x 2 array, got {data.shape}")
     record = Record(
-        time=np.arange(data.shape[0], dtype=np.float64),
+        time=ASSUMED_DT * np.arange(data.shape[0], dtype=np.float64),
         torque=data[:, 0],
         extras={"acceleration": data[:, 1]},
         name="sweep",
@@ -65,7 +72,8 @@ def convert(files: dict[str, Path]) -> dict[str, Record]:
             "description": RECORDS["sweep"],
             "rig": SOURCE.description,
             "channels": (
-                "time: sample index (sampling period unpublished); torque: measured reaction "
+                f"time: sample index x {ASSUMED_DT:g} s (the sampling period is unpublished; "
+                "the packaged rig daisy_robot_arm assumes it); torque: measured reaction "
                 "torque, raw units; acceleration: arm acceleration, raw units, position unknown"
             ),
             "source": f"{SOURCE.source_line}: robot_arm_dat.mat",
