@@ -255,3 +255,13 @@ def test_identify_and_validate_records_with_different_channels(rig, records, tmp
     assert rows["hub_only"][3] == "-" and rows["held"][2:4] == ["no", "motion"]
     table = json.loads((tmp_path / "table.json").read_text())["records"]
     assert [set(r["nrmse"]) for r in table] == [{"hub", "acc"}, {"hub"}, {"hub", "acc"}]
+
+
+def test_discover_says_which_channel_it_leaves_out_before_any_fit(strip, records):
+    from jaxflex.discovery import discover
+
+    ready = prepare(strip, [records["full"], records["hub_only"]])
+    with pytest.warns(UserWarning, match="channel 'acc' is not fitted: record 'hub_only' does "
+                                         "not log it, and discovery fits only the channels every "
+                                         "record logs"), pytest.raises(ValueError, match="no_such"):
+        discover(ready, model=strip, candidates=["no_such"])  # stops before any fit
