@@ -245,14 +245,24 @@ def test_identify_and_validate_records_with_different_channels(rig, records, tmp
     capsys.readouterr()
     with pytest.warns(UserWarning) as caught:
         assert main(["validate", str(full), str(hub_only), str(held), "--fit", str(fit),
-                     "--json", str(tmp_path / "table.json")]) == 0
+                     "--json", str(tmp_path / "table.json"), "--horizon", "0.02"]) == 0
     said = [str(w.message) for w in caught]
     assert any("record 'hub_only' does not log acc" in m for m in said)
     assert any("record 'held': measured hub is zero throughout" in m for m in said)
     out = capsys.readouterr().out
-    rows = {ln.split()[0]: ln.split() for ln in out.splitlines()
-            if ln.split() and ln.split()[0] in ("full", "hub_only", "held")}
+    rows = {}  # the first line of each record: the table's (the prediction table's follow)
+    for line in out.splitlines():
+        if line.split()[:1] in (["full"], ["hub_only"], ["held"]):
+            rows.setdefault(line.split()[0], line.split())
     assert rows["hub_only"][3] == "-" and rows["held"][2:4] == ["no", "motion"]
+    # the prediction table: a line per record and the channels it logs
+    predicted = [cells[:3] for cells in map(str.split, out.splitlines())
+                 if len(cells) > 3 and cells[0] in rows and cells[2] in ("hub", "acc")]
+    assert predicted == [["full", "fit", "hub"], ["full", "fit", "acc"],
+                         ["hub_only", "fit", "hub"], ["held", "held-out", "hub"],
+                         ["held", "held-out", "acc"]]
+    held_hub = next(ln for ln in out.splitlines() if ln.split()[:3] == ["held", "held-out", "hub"])
+    assert held_hub.split()[3:] == ["no", "motion"] * 3
     table = json.loads((tmp_path / "table.json").read_text())["records"]
     assert [set(r["nrmse"]) for r in table] == [{"hub", "acc"}, {"hub"}, {"hub", "acc"}]
 
