@@ -245,7 +245,8 @@ def test_identify_and_validate_records_with_different_channels(rig, records, tmp
     capsys.readouterr()
     with pytest.warns(UserWarning) as caught:
         assert main(["validate", str(full), str(hub_only), str(held), "--fit", str(fit),
-                     "--json", str(tmp_path / "table.json"), "--horizon", "0.02"]) == 0
+                     "--json", str(tmp_path / "table.json"), "--horizon", "0.02",
+                     "--report", str(tmp_path / "report")]) == 0
     said = [str(w.message) for w in caught]
     assert any("record 'hub_only' does not log acc" in m for m in said)
     assert any("record 'held': measured hub is zero throughout" in m for m in said)
@@ -263,6 +264,9 @@ def test_identify_and_validate_records_with_different_channels(rig, records, tmp
                          ["held", "held-out", "acc"]]
     held_hub = next(ln for ln in out.splitlines() if ln.split()[:3] == ["held", "held-out", "hub"])
     assert held_hub.split()[3:] == ["no", "motion"] * 3
+    figures = sorted(p.name for p in (tmp_path / "report").glob("*.png"))
+    assert figures == ["frf.png", "full_prediction.png", "full_time.png", "held_prediction.png",
+                       "held_time.png", "hub_only_prediction.png", "hub_only_time.png"]
     table = json.loads((tmp_path / "table.json").read_text())["records"]
     assert [set(r["nrmse"]) for r in table] == [{"hub", "acc"}, {"hub"}, {"hub", "acc"}]
 
