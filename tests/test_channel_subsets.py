@@ -191,6 +191,17 @@ def test_a_hub_held_by_friction_is_reported_not_divided_by(strip, records):
     assert data["records"][0]["no_motion"] == ["hub"]
 
 
+def test_validate_gives_nan_for_a_channel_that_never_moves(strip, records):
+    from jaxflex.measured import validate
+
+    with pytest.warns(UserWarning, match=r"record 'held': hub is zero throughout \(no motion\); "
+                                         r"its NRMSE is undefined \(NaN\), its RMS error is"):
+        scores = validate([records["held"], records["hub_only"]], strip,
+                          strip.space.reference())
+    assert math.isnan(scores["held"]["hub"]) and math.isfinite(scores["held"]["acc"])
+    assert set(scores["hub_only"]) == {"hub"} and math.isfinite(scores["hub_only"]["hub"])
+
+
 # --- what the commands say ----------------------------------------------------------------------
 
 
