@@ -9,6 +9,7 @@ one-step prediction and each horizon's.
 
 from __future__ import annotations
 
+import math
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from typing import Any
@@ -38,11 +39,13 @@ class PredictionComparison:
         return self.prediction.channels
 
     def scores(self) -> dict[str, dict[str, float]]:
-        """NRMSE (percent) per channel: ``simulation``, ``one_step`` and ``<h> s`` per horizon."""
+        """NRMSE (percent) per channel: ``simulation``, ``one_step`` and ``<h> s`` per horizon;
+        NaN for a channel measured zero throughout (no motion: no NRMSE is defined)."""
         measured, p = self.prediction.measured, self.prediction
         series = {"simulation": self.simulated, "one_step": p.one_step} | {
             f"{h:g} s": y for h, y in p.predicted.items()}
-        return {label: {c: nrmse(measured[i], y[i]) for i, c in enumerate(self.channels)}
+        return {label: {c: nrmse(measured[i], y[i]) if np.any(measured[i]) else math.nan
+                        for i, c in enumerate(self.channels)}
                 for label, y in series.items()}
 
     def to_dict(self) -> dict[str, Any]:
@@ -66,11 +69,13 @@ def compare_predictions(
     """Simulate and predict each record (as the model reads it) ``horizons`` seconds ahead.
 
     The filter's noise levels are ``noise`` and ``disturbance`` where given, else fitted by
-    maximum likelihood on each record (:func:`jaxflex.kalman.predict`).
+    maximum likelihood on each record (:func:`jaxflex.kalman.predict`). Each record is
+    predicted on those of ``channels`` (default: the ones the model fits) that it logs.
     """
     rows = []
     for record in records:
-        [prediction] = predict(record, model, params, horizons, channels=channels, noise=noise,
+        own = None if channels is None else [c for c in channels if c in record.columns]
+        [prediction] = predict(record, model, params, horizons, channels=own, noise=noise,
                                disturbance=disturbance)
         out = simulate_readings(model, params, record.input, record.dt)
         rows.append(PredictionComparison(
@@ -91,7 +96,8 @@ def prediction_table(rows: Sequence[PredictionComparison]) -> str:
         scores = row.scores()
         for c in row.channels:
             lines.append(f"{row.name[:20]:<20} {row.role:<8} {c[:18]:<18}"
-                         + "".join(f"{scores[lab][c]:>12.3g}" for lab in labels))
+                         + "".join(f"{scores[lab][c]:>12.3g}" if math.isfinite(scores[lab][c])
+                                   else f"{'no motion':>12}" for lab in labels))
     return "\n".join(lines) + "\n"
 
 

@@ -191,6 +191,17 @@ def test_a_hub_held_by_friction_is_reported_not_divided_by(strip, records):
     assert data["records"][0]["no_motion"] == ["hub"]
 
 
+def test_validate_gives_nan_for_a_channel_that_never_moves(strip, records):
+    from jaxflex.measured import validate
+
+    with pytest.warns(UserWarning, match=r"record 'held': hub is zero throughout \(no motion\); "
+                                         r"its NRMSE is undefined \(NaN\), its RMS error is"):
+        scores = validate([records["held"], records["hub_only"]], strip,
+                          strip.space.reference())
+    assert math.isnan(scores["held"]["hub"]) and math.isfinite(scores["held"]["acc"])
+    assert set(scores["hub_only"]) == {"hub"} and math.isfinite(scores["hub_only"]["hub"])
+
+
 # --- what the commands say ----------------------------------------------------------------------
 
 
@@ -245,13 +256,37 @@ def test_identify_and_validate_records_with_different_channels(rig, records, tmp
     capsys.readouterr()
     with pytest.warns(UserWarning) as caught:
         assert main(["validate", str(full), str(hub_only), str(held), "--fit", str(fit),
-                     "--json", str(tmp_path / "table.json")]) == 0
+                     "--json", str(tmp_path / "table.json"), "--horizon", "0.02",
+                     "--report", str(tmp_path / "report")]) == 0
     said = [str(w.message) for w in caught]
     assert any("record 'hub_only' does not log acc" in m for m in said)
     assert any("record 'held': measured hub is zero throughout" in m for m in said)
     out = capsys.readouterr().out
-    rows = {ln.split()[0]: ln.split() for ln in out.splitlines()
-            if ln.split() and ln.split()[0] in ("full", "hub_only", "held")}
+    rows = {}  # the first line of each record: the table's (the prediction table's follow)
+    for line in out.splitlines():
+        if line.split()[:1] in (["full"], ["hub_only"], ["held"]):
+            rows.setdefault(line.split()[0], line.split())
     assert rows["hub_only"][3] == "-" and rows["held"][2:4] == ["no", "motion"]
+    # the prediction table: a line per record and the channels it logs
+    predicted = [cells[:3] for cells in map(str.split, out.splitlines())
+                 if len(cells) > 3 and cells[0] in rows and cells[2] in ("hub", "acc")]
+    assert predicted == [["full", "fit", "hub"], ["full", "fit", "acc"],
+                         ["hub_only", "fit", "hub"], ["held", "held-out", "hub"],
+                         ["held", "held-out", "acc"]]
+    held_hub = next(ln for ln in out.splitlines() if ln.split()[:3] == ["held", "held-out", "hub"])
+    assert held_hub.split()[3:] == ["no", "motion"] * 3
+    figures = sorted(p.name for p in (tmp_path / "report").glob("*.png"))
+    assert figures == ["frf.png", "full_prediction.png", "full_time.png", "held_prediction.png",
+                       "held_time.png", "hub_only_prediction.png", "hub_only_time.png"]
     table = json.loads((tmp_path / "table.json").read_text())["records"]
     assert [set(r["nrmse"]) for r in table] == [{"hub", "acc"}, {"hub"}, {"hub", "acc"}]
+
+
+def test_discover_says_which_channel_it_leaves_out_before_any_fit(strip, records):
+    from jaxflex.discovery import discover
+
+    ready = prepare(strip, [records["full"], records["hub_only"]])
+    with pytest.warns(UserWarning, match="channel 'acc' is not fitted: record 'hub_only' does "
+                                         "not log it, and discovery fits only the channels every "
+                                         "record logs"), pytest.raises(ValueError, match="no_such"):
+        discover(ready, model=strip, candidates=["no_such"])  # stops before any fit

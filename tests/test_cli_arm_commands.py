@@ -182,6 +182,8 @@ def test_design_with_an_arm_writes_the_drive_and_sensor_columns(tmp_path, capsys
     assert np.max(np.abs(record.channel("voltage"))) <= 4.0 * (1 + 1e-9)
     assert record.dt == pytest.approx(ROTFLEX.testbed.dt)
     assert "predicted" in record.metadata["note"]
+    assert out.read_text().splitlines()[0] == (
+        "# units = time s, joint_angle rad, voltage V, deflection_angle rad")
 
 
 def test_two_link_records_are_refused(tmp_path, reference_log, capsys):

@@ -127,7 +127,14 @@ def test_a_joint_that_never_moves_gives_nan_not_a_crash():
     with pytest.warns(UserWarning, match="'multisine': measured joint_angle is zero"):
         c = compare(weak, Model(), reference_parameters())
     assert math.isnan(c[0].nrmse["joint_angle"]) and math.isfinite(c[0].nrmse["tip_acceleration"])
-    assert "n/a" in c.table()
+    assert c[0].still == ("joint_angle",)
+    row = next(ln for ln in c.table().splitlines() if ln.startswith("multisine"))
+    assert row.split()[2:4] == ["no", "motion"]
+    model_angle = np.asarray(c.outputs(0).joint_angle)[weak.time <= 2.0 + 1e-9]  # t_end 2 s
+    assert c[0].rms_error["joint_angle"] == pytest.approx(
+        np.sqrt(np.mean(model_angle**2)), rel=1e-12)
+    assert f"multisine joint_angle {c[0].rms_error['joint_angle']:.3g} rad" in " ".join(
+        c.table().split())
     assert (
         json.loads(json.dumps(c.to_dict(), allow_nan=False))["records"][0]["nrmse_percent"][
             "joint_angle"

@@ -6,6 +6,7 @@ from __future__ import annotations
 import dataclasses
 import math
 import time
+import warnings
 from collections.abc import Iterable, Mapping, Sequence
 from typing import Any
 
@@ -279,6 +280,12 @@ def discover(
         every = [*records, *(holdout or ())]
         channels = tuple(c for c in fitted_channels(records, model)
                          if all(c in r.columns for r in every)) or fitted_channels(every, model)
+        for c in fitted_channels(every, model):
+            lacking = next((r.name for r in every if c not in r.columns), None)
+            if c not in channels and lacking is not None:
+                warnings.warn(f"channel {c!r} is not fitted: record {lacking!r} does not log it, "
+                              "and discovery fits only the channels every record logs",
+                              stacklevel=2)
     fixed = held_fixed(model, fixed, bounds)
     channels = _channels(records, channels, model)
     cands = tuple(

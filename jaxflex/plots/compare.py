@@ -44,14 +44,15 @@ def plot_time(
     """Measured vs model for each output of one record, the residual (measured − model) below.
 
     ``source`` is a comparison (``which`` picks the record by name or position; the legend
-    quotes its NRMSE; ``outputs`` default to its channels, in their units) or a measured record
-    together with ``simulated`` outputs (``outputs`` default to joint angle and tip
-    acceleration).
+    quotes its NRMSE; ``outputs`` default to its channels that the record logs, in their units)
+    or a measured record together with ``simulated`` outputs (``outputs`` default to joint
+    angle and tip acceleration).
     """
     units: dict[str, str] = {}
     if isinstance(source, Comparison):
         record, out, row = source.record(which), source.outputs(which), source[which]
-        outputs = source.channels if outputs is None else outputs
+        if outputs is None:  # the channels the record logs
+            outputs = [c for c in source.channels if c in record.columns]
         units = source.units
     elif isinstance(source, Record):
         if simulated is None:
@@ -153,6 +154,8 @@ def plot_frf(
     shown_db = []
     peak_label = "measured peak"
     for i, (name, frf, peaks) in enumerate(curves):
+        if not np.isfinite(frf.measured).any():  # the record does not log the link channel
+            continue
         show = (frf.freqs > 0) & (frf.freqs <= f_max) & np.isfinite(frf.measured)
         used, left_out = show & frf.compared, show & ~frf.compared
         f = frf.freqs
