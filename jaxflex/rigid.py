@@ -33,10 +33,12 @@ cutoff or when the record holds little motion: see ``tests/test_rigid.py``.
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import warnings
 from collections.abc import Iterable, Sequence
 from dataclasses import dataclass, field
+from typing import TYPE_CHECKING
 
 import jax
 import jax.numpy as jnp
@@ -46,8 +48,11 @@ from jaxtyping import Array, ArrayLike, Float
 from jaxflex.data import Dataset, Record
 from jaxflex.parameters import ParameterSpace
 from jaxflex.preprocess import differentiate, lowpass
-from jaxflex.simulation import Outputs, check_dt, check_torque
+from jaxflex.simulation import Outputs, check_dt, check_torque, with_readings
 from jaxflex.testbed import Testbed
+
+if TYPE_CHECKING:
+    from jaxflex.model import Model
 
 DEFAULT_CUTOFF_HZ = 4.0
 """Low-pass cutoff (Hz): half the reference arm's first free-hub mode (8.4 Hz)."""
@@ -350,6 +355,7 @@ def rigid_simulate(
     *,
     length: float | None = None,
     n_substeps: int = 4,
+    model: Model | None = None,
 ) -> Outputs:
     """Joint motion of the rigid model ``J_tot θ'' = tau − c − b_v θ' − tau_c sgn θ'`` from rest.
 
@@ -357,28 +363,41 @@ def rigid_simulate(
     Coulomb law, solved in closed form: the joint sticks when ``|v + h(tau − c)/J| ≤ h·tau_c/J``
     and otherwise ``v⁺ = (v + h(tau − c − tau_c·s)/J) / (1 + h b_v/J)``. The angle advances by
     the trapezoidal rule. Outputs are those of :class:`jaxflex.simulation.Outputs` at the sample
-    instants (right-hand limit of the torque): the tip acceleration of a rigid link is ``L·θ''``
-    (``length`` defaults to the reference testbed's); deflection and strain are zero.
+    instants (right-hand limit of the torque): the tip acceleration of a rigid link is
+    ``(r + L)·θ''`` (``length`` defaults to the reference testbed's, ``r`` is the clamp offset);
+    deflection and strain are zero. With a rig ``model`` (its link, in place of ``length``) the
+    outputs also hold its stations and its sensors' readings as a rigid link gives them (an
+    accelerometer at ``x`` reads ``(r + x)·θ''``), so that they compare with its records.
     """
+    if model is not None and length is not None:
+        raise ValueError("give length or model, not both: the model's link has its length")
     torque = check_torque(torque)
     dt = check_dt(dt)
     if not (isinstance(n_substeps, int) and n_substeps >= 1):
         raise ValueError(f"n_substeps must be an int >= 1, got {n_substeps!r}")
     if not estimate.J_tot > 0:
         raise ValueError(f"the estimate's J_tot={estimate.J_tot!r} must be positive")
-    length = Testbed().length if length is None else float(length)
+    link = Testbed() if model is None else model.testbed
+    length = link.length if length is None else float(length)
     coefficients = jnp.array([estimate.J_tot, estimate.b_v, estimate.tau_c, estimate.offset])
     out = _rigid_scan(coefficients, jnp.asarray(torque), float(dt), n_substeps)
     angle, velocity, acceleration, joint_torque = (np.asarray(o) for o in out)
     zero = np.zeros_like(angle)
-    return Outputs(
+    outputs = Outputs(
         joint_angle=angle,
-        tip_acceleration=length * acceleration,
+        tip_acceleration=(link.clamp_offset + length) * acceleration,
         joint_velocity=velocity,
         tip_deflection=zero,
         root_strain=zero,
         joint_torque=joint_torque,
     )
+    if model is None or not model.stations:
+        return outputs if model is None else with_readings(model, outputs)
+    arm = link.clamp_offset + np.asarray(model.stations)
+    still = np.zeros((angle.size, arm.size))
+    return with_readings(model, dataclasses.replace(
+        outputs, station_deflection=still, station_curvature=still,
+        station_acceleration=acceleration[:, None] * arm[None, :]))
 
 
 def _coulomb_step(v: Array, drive: Array, coefficients: Array, h: float) -> Array:

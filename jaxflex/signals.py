@@ -22,9 +22,12 @@ EXCITATION_BREAKAWAY_MULTIPLE = 3.0
 """Default peak of the excitation signals, in multiples of the rig's breakaway friction torque
 (:meth:`jaxflex.model.Model.breakaway_torque`): the hub then slides through most of each cycle,
 where a peak below it leaves the hub held by friction and the record without information."""
-EXCITATION_AMPLITUDES: dict[str, float] = {"chirp": 0.32, "multisine": 0.32}
-"""Default amplitude of the excitation signals (N m) on the reference testbed: about
-:data:`EXCITATION_BREAKAWAY_MULTIPLE` times its Coulomb friction ``tau_c = 0.1071`` N m."""
+_REFERENCE_BREAKAWAY = 0.1071  # N m: the reference testbed's tau_c (jaxflex.parameters)
+EXCITATION_AMPLITUDES: dict[str, float] = {
+    name: EXCITATION_BREAKAWAY_MULTIPLE * _REFERENCE_BREAKAWAY for name in ("chirp", "multisine")
+}
+"""Default amplitude of the excitation signals (N m) on the reference testbed:
+:data:`EXCITATION_BREAKAWAY_MULTIPLE` times its breakaway friction ``tau_c = 0.1071`` N m."""
 INPUT_NAMES: tuple[str, ...] = (*REFERENCE_AMPLITUDES, *EXCITATION_AMPLITUDES)
 """Every input shape :func:`reference_input` knows: the references, then the excitations."""
 
@@ -55,7 +58,7 @@ def half_sine(t, amplitude: float = 0.39, width: float = REFERENCE_WIDTH):
     return np.where((t >= 0) & (t < width), amplitude * np.sin(np.pi * t / width), 0.0)
 
 
-def chirp(t, amplitude: float = 0.32, f0: float = 0.5, f1: float = 20.0, duration=None):
+def chirp(t, amplitude: float = 0.3213, f0: float = 0.5, f1: float = 20.0, duration=None):
     """Linear chirp from ``f0`` to ``f1`` Hz over ``duration`` (default: the whole grid)."""
     t = np.asarray(t, dtype=np.float64)
     duration = float(t[-1]) if duration is None else duration
@@ -66,7 +69,7 @@ def chirp(t, amplitude: float = 0.32, f0: float = 0.5, f1: float = 20.0, duratio
 
 def multisine(
     t,
-    amplitude: float = 0.32,
+    amplitude: float = 0.3213,
     frequencies=(1.0, 3.0, 6.0, 9.0, 14.0, 20.0),
     phases=None,
     seed: int = 0,

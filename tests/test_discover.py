@@ -598,3 +598,29 @@ def test_discover_on_the_rotflex_square_wave_names_the_torque_offset():
     assert offset.nrmse["deflection_angle"] < 0.9 * base.nrmse["deflection_angle"]
     held_base, held = (s.holdout["relative_error"]["joint_angle"] for s in report.steps)
     assert held < 0.15 * held_base
+
+
+def test_discover_on_a_rig_whose_channels_are_its_own():
+    """An accelerometer ``acc_mid`` part-way along and a tip laser: every rung, the rigid one
+    first, is scored on the rig's own channels (a rigid link reads ``x·θ''`` and no
+    deflection), and the flexible model follows all three."""
+    from jaxflex.data import Dataset
+    from jaxflex.measured import logged_record
+    from jaxflex.sensors import Accelerometer, DeflectionSensor
+    from jaxflex.signals import reference_input
+    from jaxflex.testbed import Testbed
+
+    rig = Model(Testbed(length=0.42, width=0.02, thickness=0.0025, n_elements=2, duration=0.5),
+                sensors=(Encoder(channel="joint_angle", counts_per_revolution=2048),
+                         Accelerometer(channel="acc_mid", x=0.25, noise=0.05),
+                         DeflectionSensor(channel="laser", x=0.42, noise=2e-5)), name="bench")
+    truth = rig.space.reference()
+    torque = np.concatenate([np.zeros(100), reference_input("triangular", duration=0.4)[1]])
+    time = 1e-3 * np.arange(torque.size)
+    records = Dataset([logged_record(rig, truth, time, torque, seed=0, name="triangular")])
+    result = discover(records, model=rig, initial={k: 1.05 * float(v) for k, v in truth.items()},
+                      candidates=["payload"], max_steps=0)
+    rigid, base = result.steps
+    assert rigid.label == "rigid" and set(rigid.nrmse) == {"joint_angle", "acc_mid", "laser"}
+    assert rigid.nrmse["laser"] == pytest.approx(100.0) and rigid.nrmse["acc_mid"] < 50.0
+    assert all(v < 5.0 for v in base.nrmse.values()), base.nrmse

@@ -83,7 +83,8 @@ def test_the_breakaway_torque_is_the_static_friction():
     assert stribeck.breakaway_torque(values) == pytest.approx(0.1071 + 0.04, rel=1e-9)
     # the reference testbed's default excitation is the multiple of its breakaway
     for amplitude in EXCITATION_AMPLITUDES.values():
-        assert amplitude == pytest.approx(EXCITATION_BREAKAWAY_MULTIPLE * 0.1071, rel=0.01)
+        assert amplitude == pytest.approx(EXCITATION_BREAKAWAY_MULTIPLE * float(params["tau_c"]),
+                                          rel=1e-12)
 
 
 @pytest.mark.parametrize("name", ["chirp", "multisine"])

@@ -210,6 +210,30 @@ def test_rigid_simulate_matches_closed_form():
     )
 
 
+def test_rigid_simulate_of_a_rig_reads_its_sensors_as_a_rigid_link():
+    """A rig's own channels (an encoder named as it logs, an accelerometer part-way along a
+    link clamped off the axis, a tip laser, a gauge): the rigid link's readings, by channel."""
+    from jaxflex.sensors import Accelerometer, DeflectionSensor, Encoder, StrainGauge
+
+    link = testbed.Testbed(length=0.42, width=0.02, thickness=0.0025, clamp_offset=0.03)
+    rig = Model(link, sensors=(Encoder(channel="angle", gain=-1.0),
+                               Accelerometer(channel="acc_mid", x=0.25, gain=0.1),
+                               DeflectionSensor(channel="laser", x=0.42),
+                               StrainGauge(channel="sg", x=0.1)))
+    estimate = estimate_rigid(make_records(inputs=("pulse",), seed=0), offset=False)
+    torque = np.where(np.arange(600) < 300, 0.25, 0.0)
+    out = rigid_simulate(estimate, torque, 1e-3, model=rig)
+    alone = rigid_simulate(estimate, torque, 1e-3, length=0.45)
+    np.testing.assert_array_equal(out.channel("angle"), -alone.joint_angle)
+    np.testing.assert_allclose(out.channel("acc_mid"), 0.1 * 0.28 / 0.45 * alone.tip_acceleration,
+                               rtol=1e-12)
+    np.testing.assert_allclose(out.tip_acceleration, alone.tip_acceleration, rtol=1e-12)
+    assert np.max(np.abs(out.channel("acc_mid"))) > 0.1
+    assert not np.any(out.channel("laser")) and not np.any(out.channel("sg"))
+    with pytest.raises(ValueError, match="give length or model, not both"):
+        rigid_simulate(estimate, torque, 1e-3, model=rig, length=0.42)
+
+
 def test_rigid_model_is_the_first_rung(paper_records):
     """The rigid model follows the joint angle (NRMSE < 5 %) but misses the vibration."""
     from jaxflex.metrics import nrmse

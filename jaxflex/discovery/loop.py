@@ -106,11 +106,11 @@ def _rigid_step(engine: Engine, estimate, records: Dataset, holdout: Dataset | N
     """The first rung of the ladder: the rigid-body model (no link flexibility)."""
     from jaxflex.rigid import rigid_simulate
 
-    length = engine.universe.base.testbed.length
-    preds = tuple(rigid_simulate(estimate, r.input, r.dt, length=length) for r in records)
+    rig = engine.universe.base  # its link and sensors: the rigid predictions of every channel
+    preds = tuple(rigid_simulate(estimate, r.input, r.dt, model=rig) for r in records)
     held = None
     if holdout is not None:
-        held = [rigid_simulate(estimate, r.input, r.dt, length=length) for r in holdout]
+        held = [rigid_simulate(estimate, r.input, r.dt, model=rig) for r in holdout]
     nrmse, frf, held = _metrics(records, preds, holdout, held, channels, t_end)
     params = {"J_tot": estimate.J_tot, "b_v": estimate.b_v, "tau_c": estimate.tau_c}
     fit = DiscoveryFit(model=None, params=params, cost=engine.prediction_cost(preds),
