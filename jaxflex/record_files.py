@@ -343,7 +343,7 @@ def _missing_columns(names: Sequence[str], kind: str, own: Sequence[str] = ()) -
         if c not in names and (c == "time" or _did_you_mean(c, unused))
     ]
     details = "; ".join(f"{kind} {c!r} not found{_did_you_mean(c, unused)}" for c in missing)
-    if details and not own and any(_did_you_mean(c, unused) for c in missing):
+    if not own and any(c != "time" and _did_you_mean(c, unused) for c in missing):
         details += (" (if it is a rig's sensor channel, read the record for the rig: --arm RIG on "
                     "the command line, jaxflex.load_records(paths, rig) in Python)")
     return details
