@@ -55,9 +55,11 @@ def load_record(
 
     ``name`` defaults to the file stem. ``channels`` names a rig's sensor channels: a column
     named so is that sensor's, never taken for a misspelt reference-format column (a rig's
-    ``angle`` is not a typing error for ``joint_angle``). A non-uniform time column is an error
-    unless ``resample=True``, which interpolates all columns linearly onto a grid with the median
-    step (with a :class:`RecordWarning` that names the longest gap). Columns whose units look wrong
+    ``angle`` is not a typing error for ``joint_angle``); a rig's records are read with them by
+    :func:`jaxflex.measured.load_records`, which also makes them ready for the rig. A non-uniform
+    time column is an error unless ``resample=True``, which interpolates all columns linearly
+    onto a grid with the median step (with a :class:`RecordWarning` that names the longest
+    gap). Columns whose units look wrong
     (time in ms, angle in degrees, torque far off scale; :func:`check_units`) are an error
     unless ``unit_check=False``.
     """
