@@ -1,32 +1,20 @@
 """The documentation's measured figures, read from ``benchmarks/results/*.json``: none is copied
 by hand, so a figure on a page is the one its results file holds.
 
-- On a documentation page (through ``docs/hooks.py``) the marker ``<!-- benchmark: NAME -->``
-  becomes the table :data:`TABLES` ``[NAME]`` builds, and ``{{ FILE/KEY/... | SPEC }}`` one value
-  of ``benchmarks/results/FILE.json``, formatted by ``SPEC`` (a Python format spec, optionally
-  after ``ms`` for seconds shown in milliseconds or ``%`` for a fraction shown in per cent).
-- In the README, which GitHub shows as it is, the tables between
-  ``<!-- generated: NAME -->`` and ``<!-- end generated -->`` are written by running
-  ``python docs/benchmark_tables.py``; ``--check`` only says whether they are current (the
-  tests run it).
+:data:`TABLES` builds each table by name, :func:`lookup` and :func:`formatted` give one value;
+``docs/generated.py`` writes them into the README and the pages (``<!-- generated: NAME -->``
+blocks, ``<!-- value: FILE/KEY/... | SPEC -->`` values).
 """
 
 from __future__ import annotations
 
 import json
-import re
-import sys
 from collections.abc import Callable
 from functools import cache
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
 RESULTS = ROOT / "benchmarks" / "results"
-README = ROOT / "README.md"
-
-MARKER = re.compile(r"<!-- benchmark: (\w+) -->")
-VALUE = re.compile(r"\{\{\s*([^|}]+?)\s*(?:\|\s*([^}]*?)\s*)?\}\}")
-GENERATED = re.compile(r"(<!-- generated: (\w+) -->\n)(.*?)(<!-- end generated -->)", re.S)
 
 
 @cache
@@ -45,16 +33,12 @@ def lookup(path: str) -> object:
 
 
 def formatted(value: object, spec: str = "") -> str:
-    """``value`` as text: ``spec`` is a format spec, after ``ms`` (× 1000) or ``%`` (× 100)."""
+    """``value`` as text: ``spec`` is a Python format spec, optionally after ``ms`` (seconds
+    shown in milliseconds) or ``%`` (a fraction shown in per cent)."""
     unit, _, rest = spec.partition(" ")
     if unit in ("ms", "%"):
         return format(float(value) * 1000 if unit == "ms" else float(value) * 100, rest)
     return format(value, spec)
-
-
-def fill_values(markdown: str) -> str:
-    """Every ``{{ FILE/KEY/... | SPEC }}`` of ``markdown`` replaced by its value."""
-    return VALUE.sub(lambda m: formatted(lookup(m.group(1)), m.group(2) or ""), markdown)
 
 
 def _table(header: list[str], rows: list[list[str]]) -> str:
@@ -349,29 +333,3 @@ TABLES: dict[str, Callable[[], str]] = {
     "machines": machines_table,
 }
 """Each table by the name its marker gives."""
-
-
-def fill_tables(markdown: str) -> str:
-    """Every ``<!-- benchmark: NAME -->`` of ``markdown`` replaced by its table."""
-    return MARKER.sub(lambda m: TABLES[m.group(1)](), markdown)
-
-
-def regenerate(text: str) -> str:
-    """``text`` (the README) with each generated block rewritten from the results."""
-    return GENERATED.sub(lambda m: m.group(1) + TABLES[m.group(2)]() + m.group(4), text)
-
-
-def main(argv: list[str]) -> int:
-    text = README.read_text(encoding="utf-8")
-    current = regenerate(text)
-    if "--check" in argv:
-        if current != text:
-            print(f"{README}: generated tables are stale; run python docs/benchmark_tables.py")
-            return 1
-        return 0
-    README.write_text(current, encoding="utf-8")
-    return 0
-
-
-if __name__ == "__main__":
-    sys.exit(main(sys.argv[1:]))

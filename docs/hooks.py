@@ -1,8 +1,7 @@
 """MkDocs hooks: the API reference must document every public name, its overview table is
-generated from ``jaxflex.__all__``, the command-line page shows each command's ``--help``
-(generated from the parser), the effects page the rules of discover's claims (from
-``jaxflex.discovery.explain.RULES``) and every measured figure comes from its results file
-(``docs/benchmark_tables.py``), so that none goes stale.
+generated from ``jaxflex.__all__``, and the generated parts of every page (each command's
+``--help``, the rules of discover's claims, the rig-file reference, every measured figure:
+``docs/generated.py``) are filled afresh and their markers dropped, so that none goes stale.
 
 A public name is one listed in ``__all__`` of ``jaxflex`` or of any public module or subpackage
 (or, for a module without ``__all__``, any name it defines without a leading underscore). Each
@@ -12,10 +11,8 @@ missing one is a warning, so ``mkdocs build --strict`` fails.
 
 from __future__ import annotations
 
-import argparse
 import importlib.util
 import logging
-import os
 import re
 import sys
 from pathlib import Path
@@ -27,23 +24,20 @@ log = logging.getLogger("mkdocs.hooks.jaxflex")
 BLOCK = re.compile(r"^:::\s+([\w.]+)", re.M)
 NOT_API = "jaxflex.cli"  # the command line has its own page
 OVERVIEW_MARKER = "<!-- jaxflex.__all__ -->"
-COMMANDS_MARKER = "<!-- commands -->"
-RULES_MARKER = "<!-- discover claim rules -->"
-HELP_WIDTH = "100"
 
 _package: griffe.Module | None = None
 
 
-def _load_benchmark_tables():
-    """``docs/benchmark_tables.py``, loaded by path (``docs`` is no package)."""
-    path = Path(__file__).with_name("benchmark_tables.py")
-    spec = importlib.util.spec_from_file_location("jaxflex_docs_benchmark_tables", path)
+def _load_generated():
+    """``docs/generated.py``, loaded by path (``docs`` is no package)."""
+    path = Path(__file__).with_name("generated.py")
+    spec = importlib.util.spec_from_file_location("jaxflex_docs_generated", path)
     module = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(module)
     return module
 
 
-benchmark_tables = _load_benchmark_tables()
+generated = _load_generated()
 
 
 def on_config(config):
@@ -84,21 +78,7 @@ def on_files(files, config):
 def on_page_markdown(markdown, page, config, files):
     if OVERVIEW_MARKER in markdown:
         markdown = markdown.replace(OVERVIEW_MARKER, _overview())
-    if COMMANDS_MARKER in markdown:
-        markdown = markdown.replace(COMMANDS_MARKER, _commands())
-    if RULES_MARKER in markdown:
-        markdown = markdown.replace(RULES_MARKER, _claim_rules())
-    return benchmark_tables.fill_values(benchmark_tables.fill_tables(markdown))
-
-
-def _claim_rules() -> str:
-    """A table of :data:`jaxflex.discovery.explain.RULES`: claim, what it says, when."""
-    from jaxflex.discovery.explain import RULES
-
-    rows = ["| claim | what it says | made only when |", "|---|---|---|"]
-    for rule in RULES.values():
-        rows.append(f"| `{rule.name}` | {rule.says} | {rule.when} |".replace("\n", " "))
-    return "\n".join(rows) + "\n"
+    return generated.for_the_site(markdown)
 
 
 def _overview() -> str:
@@ -112,26 +92,6 @@ def _overview() -> str:
         module = target.rpartition(".")[0]
         rows.append(f"| [`{member.name}`][{target}] | `{module}` | {summary} |")
     return "\n".join(rows) + "\n"
-
-
-def _commands() -> str:
-    """Each command's ``--help`` under its own heading."""
-    from jaxflex.cli import build_parser
-
-    sub = next(a for a in build_parser()._actions if isinstance(a, argparse._SubParsersAction))
-    columns = os.environ.get("COLUMNS")
-    os.environ["COLUMNS"] = HELP_WIDTH  # argparse wraps to the terminal width
-    try:
-        sections = [
-            f"## `jaxflex {name}`\n\n```text\n{parser.format_help()}```\n"
-            for name, parser in sub.choices.items()
-        ]
-    finally:
-        if columns is None:
-            del os.environ["COLUMNS"]
-        else:
-            os.environ["COLUMNS"] = columns
-    return "\n".join(sections)
 
 
 def _public_modules(module: griffe.Module):

@@ -55,9 +55,11 @@ def load_record(
 
     ``name`` defaults to the file stem. ``channels`` names a rig's sensor channels: a column
     named so is that sensor's, never taken for a misspelt reference-format column (a rig's
-    ``angle`` is not a typing error for ``joint_angle``). A non-uniform time column is an error
-    unless ``resample=True``, which interpolates all columns linearly onto a grid with the median
-    step (with a :class:`RecordWarning` that names the longest gap). Columns whose units look wrong
+    ``angle`` is not a typing error for ``joint_angle``); a rig's records are read with them by
+    :func:`jaxflex.measured.load_records`, which also makes them ready for the rig. A non-uniform
+    time column is an error unless ``resample=True``, which interpolates all columns linearly
+    onto a grid with the median step (with a :class:`RecordWarning` that names the longest
+    gap). Columns whose units look wrong
     (time in ms, angle in degrees, torque far off scale; :func:`check_units`) are an error
     unless ``unit_check=False``; a rig's own channels are in the units its rig declares, and
     the rig checks them (:func:`jaxflex.measured.model_record`).
@@ -356,7 +358,7 @@ def _missing_columns(names: Sequence[str], kind: str, own: Sequence[str] = ()) -
         if c not in names and (c == "time" or _did_you_mean(c, unused))
     ]
     details = "; ".join(f"{kind} {c!r} not found{_did_you_mean(c, unused)}" for c in missing)
-    if details and not own and any(_did_you_mean(c, unused) for c in missing):
+    if not own and any(c != "time" and _did_you_mean(c, unused) for c in missing):
         details += (" (if it is a rig's sensor channel, read the record for the rig: --arm RIG on "
                     "the command line, jaxflex.load_records(paths, rig) in Python)")
     return details

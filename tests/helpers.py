@@ -7,6 +7,7 @@ from __future__ import annotations
 import importlib.util
 import json
 import os
+import sys
 from pathlib import Path
 
 import numpy as np
@@ -80,11 +81,11 @@ def fit_data() -> dict:
     }, default=float))
 
 
-def benchmark_tables():
-    """``docs/benchmark_tables.py``, the generator of the documented figures (loaded by path:
-    ``docs`` is no package)."""
-    spec = importlib.util.spec_from_file_location(
-        "benchmark_tables", ROOT / "docs" / "benchmark_tables.py")
+def docs_module(name: str):
+    """``docs/NAME.py`` (``generated``: the generator of the pages' generated parts;
+    ``benchmark_tables``, ``rig_file``), loaded by path: ``docs`` is no package."""
+    spec = importlib.util.spec_from_file_location(f"docs_{name}", ROOT / "docs" / f"{name}.py")
     module = importlib.util.module_from_spec(spec)
+    sys.modules[spec.name] = module  # its dataclasses look their module up
     spec.loader.exec_module(module)
     return module

@@ -74,9 +74,10 @@ def test_every_rule_is_listed_in_the_docs_table():
     from pathlib import Path
 
     docs = (Path(__file__).resolve().parents[1] / "docs" / "effects.md").read_text()
-    assert "<!-- discover claim rules -->" in docs
+    assert "<!-- generated: claim_rules -->" in docs
     for rule in RULES.values():
         assert rule.when and rule.says and rule.name.isidentifier()
+        assert f"| `{rule.name}` |" in docs  # written into the page, as GitHub shows it
     assert get_effect("torque_offset").parameters[0].unit != "s"  # not a lag effect
 
 

@@ -67,3 +67,26 @@ def test_importing_jaxflex_loads_no_jax_and_sets_jax_up_when_it_is_imported():
         done = subprocess.run([sys.executable, "-c", script.format(first=first)], env=env,
                               capture_output=True, text=True, check=True)
         assert done.stdout.split() == [str(jax_loaded), "True", "2"]
+
+
+def test_the_figure_functions_are_named_in_jaxflex_plots_and_imported_on_first_use():
+    """``jaxflex.plots`` names every figure a notebook draws: what static tools read is what
+    ``__getattr__`` imports, and drawing one figure loads only its module."""
+    import jaxflex.plots as plots
+
+    path = Path(plots.__file__)
+    tree = ast.parse(path.read_text(encoding="utf-8"))
+    guarded = next(n for n in tree.body if isinstance(n, ast.If)
+                   and ast.unparse(n.test) == "TYPE_CHECKING")
+    static = {a.asname or a.name: (n.module.rpartition(".")[2], a.name)
+              for n in guarded.body for a in n.names}
+    assert static == plots._SOURCES
+    assert set(plots.__all__) == set(static) | {"new_figure", "save_figure"}
+    for name, (module, attribute) in static.items():
+        assert getattr(plots, name) is getattr(
+            importlib.import_module(f"jaxflex.plots.{module}"), attribute)
+    script = ("import sys\nfrom jaxflex.plots import plot_convergence\n"
+              "print(sorted(m for m in sys.modules if m.startswith('jaxflex.plots.')))")
+    loaded = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True,
+                            check=True, env=os.environ | {"PYTHONPATH": str(ROOT)}).stdout
+    assert loaded.strip() == "['jaxflex.plots._style', 'jaxflex.plots.identify']"

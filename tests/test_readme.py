@@ -5,7 +5,7 @@ import re
 from pathlib import Path
 
 import pytest
-from helpers import benchmark_tables
+from helpers import docs_module
 
 ROOT = Path(__file__).resolve().parents[1]
 README = ROOT / "README.md"
@@ -16,22 +16,22 @@ def test_readme_is_a_guide_of_at_most_200_lines():
 
 
 def test_readme_figures_are_generated_from_the_results_files():
-    """The generated blocks are what ``docs/benchmark_tables.py`` makes of the results files
-    now, and no measured figure (a decimal number of per cent, times, seconds or hertz) stands
-    outside them or a code block."""
-    tables = benchmark_tables()
+    """The generated blocks are what ``docs/generated.py`` makes of the results files now, and
+    no measured figure (a decimal number of per cent, times, seconds or hertz) stands outside
+    them or a code block."""
+    generated = docs_module("generated")
     text = README.read_text(encoding="utf-8")
-    assert tables.GENERATED.search(text), "README has no generated block"
-    assert tables.regenerate(text) == text, "stale: run python docs/benchmark_tables.py"
-    prose = re.sub(r"```.*?```", "", tables.GENERATED.sub("", text), flags=re.S)
+    assert generated.BLOCK.search(text), "README has no generated block"
+    assert generated.regenerate(text) == text, "stale: run python docs/generated.py"
+    prose = re.sub(r"```.*?```", "", generated.BLOCK.sub("", text), flags=re.S)
     assert re.findall(r"\d+\.\d+ ?(?:%|×|s\b|ms\b|Hz\b)", prose) == []
 
 
 def test_a_stale_generated_block_is_found():
-    tables = benchmark_tables()
+    generated = docs_module("generated")
     stale = "<!-- generated: real_rig -->\n| 1 % |\n<!-- end generated -->\n"
-    assert tables.regenerate(stale) != stale
-    assert "| jaxflex, arm `quanser_rotflex` | 6 physical |" in tables.regenerate(stale)
+    assert generated.regenerate(stale) != stale
+    assert "| jaxflex, arm `quanser_rotflex` | 6 physical |" in generated.regenerate(stale)
 
 
 @pytest.mark.slow  # a full DE identification and a discovery run

@@ -2,18 +2,59 @@
 
 Each figure is a plain Matplotlib figure (not registered with pyplot); the names below are the
 ones a notebook or script needs, each defined in the module of its subject
-(:mod:`jaxflex.plots.compare`, ...). The design page's interval figure is
-``plot_design_intervals`` here, beside the fit's ``plot_intervals``.
+(:mod:`jaxflex.plots.compare`, ...). The design's interval figure is ``plot_design_intervals``
+here, beside the fit's ``plot_intervals``. They are imported on first use, as the package's
+top-level names are: drawing one figure loads only its module.
 """
 
+from typing import TYPE_CHECKING
+
 from jaxflex.plots._style import new_figure, save_figure
-from jaxflex.plots.compare import plot_frf, plot_time
-from jaxflex.plots.design import plot_design
-from jaxflex.plots.design import plot_intervals as plot_design_intervals
-from jaxflex.plots.diagnose import plot_diagnosis, plot_overlay
-from jaxflex.plots.discover import plot_discovery
-from jaxflex.plots.identify import plot_convergence, plot_fit, plot_intervals
-from jaxflex.plots.prediction import plot_prediction
+
+if TYPE_CHECKING:  # what static tools see; at run time __getattr__ imports each on first use
+    from jaxflex.plots.compare import plot_frf, plot_time
+    from jaxflex.plots.design import plot_design
+    from jaxflex.plots.design import plot_intervals as plot_design_intervals
+    from jaxflex.plots.diagnose import plot_diagnosis, plot_overlay
+    from jaxflex.plots.discover import plot_discovery
+    from jaxflex.plots.identify import plot_convergence, plot_fit, plot_intervals
+    from jaxflex.plots.prediction import plot_prediction
+
+_SOURCES: dict[str, tuple[str, str]] = {
+    "plot_frf": ("compare", "plot_frf"),
+    "plot_time": ("compare", "plot_time"),
+    "plot_design": ("design", "plot_design"),
+    "plot_design_intervals": ("design", "plot_intervals"),
+    "plot_diagnosis": ("diagnose", "plot_diagnosis"),
+    "plot_overlay": ("diagnose", "plot_overlay"),
+    "plot_discovery": ("discover", "plot_discovery"),
+    "plot_convergence": ("identify", "plot_convergence"),
+    "plot_fit": ("identify", "plot_fit"),
+    "plot_intervals": ("identify", "plot_intervals"),
+    "plot_prediction": ("prediction", "plot_prediction"),
+}
+"""Each lazily imported name: its module under ``jaxflex.plots`` and its name there."""
+
+
+def __getattr__(name: str):
+    """A figure function, imported from its module on first use (PEP 562); a submodule too."""
+    from importlib import import_module
+    from importlib.util import find_spec
+
+    if name in _SOURCES:
+        module, attribute = _SOURCES[name]
+        value = getattr(import_module(f"{__name__}.{module}"), attribute)
+    elif not name.startswith("__") and find_spec(f"{__name__}.{name}") is not None:
+        value = import_module(f"{__name__}.{name}")
+    else:
+        raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+    globals()[name] = value
+    return value
+
+
+def __dir__() -> list[str]:
+    return sorted(set(globals()) | set(__all__))
+
 
 __all__ = [
     "new_figure",
