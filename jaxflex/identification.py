@@ -33,6 +33,7 @@ from jaxflex._progress import stage
 from jaxflex.evolve import STRATEGIES, AbstractStrategy, get_strategy, run
 from jaxflex.fit import FIT_FORMAT, FIT_SCHEMA, Fit, History, build_model, describe_model, load_fit
 from jaxflex.intervals import uncertainty
+from jaxflex.kalman import check_disturbance
 from jaxflex.model import Model
 from jaxflex.noise import Noise, noise_levels
 from jaxflex.objective import Objective, Records, build_objective, check_records, record_tuple
@@ -209,6 +210,7 @@ def identify(
     check_records(records, "identify")
     method = check_method(method)
     criterion = check_criterion(criterion)
+    check_disturbance(disturbance)
     if criterion == "prediction" and initial_state != "rest":
         raise ValueError(f"identify: criterion='prediction' starts its filter from rest and "
                          f"corrects the state from the data; initial_state={initial_state!r} "

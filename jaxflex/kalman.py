@@ -278,6 +278,18 @@ DISTURBANCE_RANGE = (1e-9, 10.0)
 """Range (N m) over which the process-noise torque level is fitted by maximum likelihood."""
 
 
+def check_disturbance(disturbance: float | None) -> None:
+    """Refuse a process-noise torque outside :data:`DISTURBANCE_RANGE` (None: fitted), before
+    any work: squared in the filter, a huge one overflows to non-finite covariances."""
+    lower, upper = DISTURBANCE_RANGE
+    if disturbance is None:
+        return
+    if isinstance(disturbance, bool) or not isinstance(disturbance, (int, float)) or not (
+            lower <= disturbance <= upper):
+        raise ValueError(f"disturbance={disturbance!r}: expected a process-noise torque from "
+                         f"{lower:g} to {upper:g} N m (the range a fitted one is searched in)")
+
+
 def fit_noise(records: Sequence[Record], model: Model, params: Params,
               channels: Sequence[str], levels: Mapping[str, float],
               free: Sequence[str] = (), disturbance: float | None = None,

@@ -21,7 +21,15 @@ from jaxtyping import Array
 
 from jaxflex._arguments import shown
 from jaxflex.drives import AbstractDrive, TorqueDrive
-from jaxflex.effects._base import AbstractEffect, Structure, joint_friction
+from jaxflex.effects._base import (
+    AbstractEffect,
+    EffectError,
+    Structure,
+    blamed,
+    effect_label,
+    joint_friction,
+    returned,
+)
 from jaxflex.fem import BeamPatterns
 from jaxflex.parameters import BASE_PARAMETERS, ParameterSpace, ParameterSpec, Params
 from jaxflex.sensors import AbstractSensor
@@ -239,7 +247,17 @@ class Model(eqx.Module):
             length=tb.length,
         )
         for effect in self.effects:
-            structure = effect.structure(structure, params)
+            with blamed(effect, "structure"):
+                changed = effect.structure(structure, params)
+            if not isinstance(changed, Structure):
+                raise EffectError(f"effect {effect_label(effect)}: structure returned "
+                                  f"{shown(changed)}; expected a Structure")
+            square = structure.mass.shape
+            returned(effect, "structure", changed.mass, square, "its mass matrix",
+                     broadcast=False)
+            returned(effect, "structure", changed.stiffness, square, "its stiffness matrix",
+                     broadcast=False)
+            structure = changed
         return structure
 
     def friction(self, params: Params, velocity: Array) -> Array:
@@ -247,7 +265,10 @@ class Model(eqx.Module):
         omega_s = self.testbed.omega_s
         torque = joint_friction(params, velocity, omega_s)
         for effect in self.effects:
-            torque = torque + effect.friction(params, velocity, omega_s)
+            with blamed(effect, "friction"):
+                extra = effect.friction(params, velocity, omega_s)
+            torque = torque + returned(effect, "friction", extra, jnp.shape(velocity),
+                                       "a torque per velocity")
         if self.drive.damping:
             torque = torque + self.drive.damping * velocity
         return torque
@@ -264,12 +285,25 @@ class Model(eqx.Module):
 
     def loads(self, structure: Structure, params: Params) -> Array:
         """Stacked shapes of all position-dependent loads, ``(k, n)``."""
-        shapes = [e.loads(structure, params) for e in self.effects]
+        n = structure.mass.shape[0]
+        shapes = []
+        for e in self.effects:
+            with blamed(e, "loads"):
+                shape = e.loads(structure, params)
+            k = np.shape(shape)[0] if np.ndim(shape) == 2 else 0
+            shapes.append(returned(e, "loads", shape, (k, n), "k load shapes over the "
+                                   f"{n} coordinates", broadcast=False))
         return jnp.concatenate([jnp.zeros((0, structure.mass.shape[0]))] + shapes, axis=0)
 
     def load_amplitudes(self, params: Params, angle: Array, velocity: Array) -> Array:
         """Stacked amplitudes of all position-dependent loads, ``(k,)``."""
-        parts = [e.load_amplitudes(params, angle, velocity) for e in self.effects]
+        parts = []
+        for e in self.effects:
+            with blamed(e, "load_amplitudes"):
+                amplitude = e.load_amplitudes(params, angle, velocity)
+            k = np.shape(amplitude)[0] if np.ndim(amplitude) == 1 else 0
+            parts.append(returned(e, "load_amplitudes", amplitude, (k,),
+                                  "one amplitude per load shape", broadcast=False))
         parts = [a for a in parts if np.shape(a)[0]]  # no empty arrays (a GPU kernel has none)
         return jnp.concatenate(parts) if parts else jnp.zeros((0,))
 
@@ -280,12 +314,24 @@ class Model(eqx.Module):
         """
         torque = self.drive.torque(torque)
         for effect in self.effects:
-            torque = effect.input_torque(params, torque, h)
+            with blamed(effect, "input_torque"):
+                changed = effect.input_torque(params, torque, h)
+            torque = returned(effect, "input_torque", changed, jnp.shape(torque),
+                              "the torque at each instant", broadcast=False)
         return torque
 
     def readings(self, params: Params, readings: Mapping[str, Array]) -> dict[str, Array]:
         """Output channels (by name) after every effect's calibration (a sensor gain, offset)."""
         readings = dict(readings)
         for effect in self.effects:
-            readings = effect.readings(params, readings)
+            with blamed(effect, "readings"):
+                changed = effect.readings(params, readings)
+            if not isinstance(changed, Mapping) or set(readings) - set(changed):
+                said = (f"without {sorted(set(readings) - set(changed))}"
+                        if isinstance(changed, Mapping) else shown(changed))
+                raise EffectError(f"effect {effect_label(effect)}: readings returned {said}; "
+                                  f"expected every channel it was given: {sorted(readings)}")
+            readings = {c: returned(effect, "readings", changed[c], jnp.shape(readings[c]),
+                                    f"channel {c}") if c in readings else changed[c]
+                        for c in changed}
         return readings

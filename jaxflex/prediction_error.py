@@ -23,7 +23,13 @@ import jax.numpy as jnp
 from jaxtyping import Array, ArrayLike, Float, Scalar
 
 from jaxflex.data import Record
-from jaxflex.kalman import check_per_sample, filter_core, fit_noise, measurement_noise
+from jaxflex.kalman import (
+    check_disturbance,
+    check_per_sample,
+    filter_core,
+    fit_noise,
+    measurement_noise,
+)
 from jaxflex.noise import Noise
 from jaxflex.objective import Objective, per_record
 
@@ -70,8 +76,7 @@ def prediction_objective(
     channels = objective.channels
     values = {k: jnp.asarray(v, dtype=jnp.float64) for k, v in params.items()}
     check_per_sample(objective.model, values, channels)
-    if disturbance is not None and not disturbance > 0:
-        raise ValueError(f"disturbance must be a positive torque (N m), got {disturbance!r}")
+    check_disturbance(disturbance)
     levels = measurement_noise(records, objective.model, channels, noise)
     free = [c for c in channels if c not in dict(noise or {})]
     levels, disturbance = fit_noise(records, objective.model, values, channels, levels, free,

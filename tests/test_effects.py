@@ -32,7 +32,13 @@ from jaxflex.model import Model
 from jaxflex.parameters import ParameterSpec, reference_parameters
 from jaxflex.sensors import calibrated
 from jaxflex.signals import reference_input
-from jaxflex.simulation import OUTPUT_NAMES, simulate, simulate_batch, simulate_core
+from jaxflex.simulation import (
+    OUTPUT_NAMES,
+    simulate,
+    simulate_batch,
+    simulate_core,
+    simulate_readings,
+)
 
 NAMES = (
     "delay",
@@ -440,3 +446,51 @@ def test_a_user_defined_effect_plugs_in_through_the_same_hooks(pulse, base_outpu
         scale = np.abs(np.asarray(want.channel(name))).max()
         np.testing.assert_allclose(got.channel(name), want.channel(name), atol=1e-5 * scale)
     assert np.abs(np.asarray(got.joint_angle - base_outputs.joint_angle)).max() > 0.05
+
+
+class _Misbehaving(AbstractEffect):
+    """A user's effect whose hook ``fault`` goes wrong in one of the ways a new effect does."""
+
+    name: ClassVar[str] = "misbehaving"
+    parameters: ClassVar[tuple[ParameterSpec, ...]] = (
+        ParameterSpec("k_m", "N m", 0.0, 1.0, 0.1, log_scale=False, null=0.0),
+    )
+    fault: str = eqx.field(static=True, default="friction")
+
+    def friction(self, params, velocity, omega_s):
+        if self.fault == "friction":  # one torque per mode, not per velocity
+            return params["k_m"] * jnp.ones(3)
+        return jnp.zeros_like(velocity)
+
+    def structure(self, structure, params):
+        if self.fault == "structure":  # the hub's row and column dropped
+            return eqx.tree_at(lambda s: s.mass, structure, structure.mass[1:, 1:])
+        return structure
+
+    def input_torque(self, params, torque, h):
+        if self.fault == "input_torque":
+            return torque + params["k_missing"]
+        return torque
+
+    def readings(self, params, readings):
+        if self.fault == "readings":
+            return {c: v for c, v in readings.items() if c != "tip_acceleration"}
+        return dict(readings)
+
+
+@pytest.mark.parametrize(("fault", "message"), [
+    ("friction", r"friction returned an array of shape \(3,\), float64; expected real values "
+                 r"of shape \(\) \(a torque per velocity\)"),
+    ("structure", r"structure returned an array of shape \(\d+, \d+\), float64; expected real "
+                  r"values of shape \(\d+, \d+\) \(its mass matrix\)"),
+    ("input_torque", r"input_torque raised KeyError: 'k_missing'"),
+    ("readings", r"readings returned without \['tip_acceleration'\]; expected every channel it "
+                 r"was given: \["),
+])
+def test_a_user_effect_that_goes_wrong_is_named_with_what_it_returned(pulse, fault, message):
+    """Said in the effect's terms, not in JAX's from deep inside the simulator's trace."""
+    from jaxflex.effects import EffectError
+
+    model = Model().with_effects(_Misbehaving(fault=fault))
+    with pytest.raises(EffectError, match=r"^effect _Misbehaving \('misbehaving'\): " + message):
+        simulate_readings(model, _with(model, k_m=0.1), pulse[:50])

@@ -352,3 +352,51 @@ def test_a_strategy_without_ask_and_tell_cannot_be_made():
 
     with pytest.raises(TypeError, match="abstract"):
         Incomplete()
+
+
+class _Faulty(_RandomSearch):
+    """The user's strategy with one fault: ``fault`` says which."""
+
+    fault: str = eqx.field(static=True, default="ask_shape")
+
+    def ask(self, state, key):
+        candidates, state = super().ask(state, key)
+        if self.fault == "ask_shape":  # one candidate short
+            return candidates[1:], state
+        if self.fault == "ask_pair":
+            return candidates
+        if self.fault == "ask_raises":
+            return candidates @ jnp.ones((3, 3)), state  # (16, 2) @ (3, 3)
+        return candidates, state
+
+    def tell(self, state, candidates, fitness):
+        if self.fault == "tell_fitness":  # forgot to keep one fitness per member
+            told = super().tell(state, candidates, fitness)
+            return State(told.population, told.fitness[:1], told.best_x, told.best_fitness,
+                         told.generation)
+        return super().tell(state, candidates, fitness)
+
+    def initialize(self, key, dim, init_population=None):
+        population = super().initialize(key, dim, init_population)
+        return population * jnp.nan if self.fault == "nan" else population
+
+
+@pytest.mark.parametrize(("fault", "message"), [
+    ("ask_shape", "ask returned the candidates as an array of shape (15, 2), float64; expected "
+                  "real values of shape (16, 2) (population 16 in 2 dimensions)"),
+    ("ask_pair", "ask returned an array of shape (16, 2), float64; expected (candidates, state)"),
+    ("ask_raises", "ask raised TypeError: "),  # then JAX's words on the shapes
+    ("tell_fitness", "tell returned the state's fitness as an array of shape (1,), float64; "
+                     "expected real values of shape (16,)"),
+    ("nan", "initialize returned a first population with NaN or infinite values"),
+])
+def test_a_strategy_that_goes_wrong_is_named_with_what_it_returned(fault, message):
+    """Said in the strategy's terms, before the search, not in JAX's from a compiled call."""
+    from jaxflex.evolve import StrategyError
+
+    def sphere(x):
+        return jnp.sum((x - 0.25) ** 2, axis=1)
+
+    with pytest.raises(StrategyError) as info:
+        run(_Faulty(fault=fault), sphere, 2, seed=0, generations=2)
+    assert str(info.value).startswith(f"strategy _Faulty ('strategy'): {message}"), info.value

@@ -11,6 +11,7 @@ from __future__ import annotations
 import importlib
 import json
 import os
+import re
 import shutil
 import signal
 import stat
@@ -381,6 +382,19 @@ def test_absurd_sizes_are_refused_up_front(tmp_path, capsys, argv, fragments):
     assert code == 2 and not any("Traceback" in line for line in err)
     assert any(all(f in line for f in fragments) for line in err), err
     assert snapshot(tmp_path) == before
+
+
+@pytest.mark.parametrize("value", ["1e300", "20", "1e-12"])
+def test_a_disturbance_beyond_the_filters_range_is_refused_before_any_work(tmp_path, capsys,
+                                                                         value):
+    """Squared in the filter, 1e300 N m overflows; it was refused only after the search."""
+    shown = repr(float(value))
+    refused(["identify", example(tmp_path), "--criterion", "prediction", "--disturbance", value,
+             "--out", tmp_path / "f.json"], capsys, tmp_path,
+            f"--disturbance {shown}: expected a process-noise torque from 1e-09 to 10 N m")
+    records = [jaxflex.load_record(example(tmp_path))]
+    with pytest.raises(ValueError, match=rf"^disturbance={re.escape(shown)}: expected a "):
+        jaxflex.identify(records, criterion="prediction", disturbance=float(value))
 
 
 def test_the_size_limit_can_be_raised(tmp_path, capsys, monkeypatch):

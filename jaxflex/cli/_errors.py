@@ -29,6 +29,7 @@ _API_TO_CLI: tuple[tuple[str, str], ...] = (
     (r"\bharmonics=", "--harmonics "),
     (r"\biterations=", "--iterations "),
     (r"\brefine_starts=", "--refine-starts "),
+    (r"\bdisturbance=", "--disturbance "),
     (r"^weights given for", "--weight given for"),
     (r"^fixed value (\w+=)", r"--fix \1"),
     (r"^amplitude must", "--amplitude must"),

@@ -93,10 +93,12 @@ def run(args: argparse.Namespace) -> int:
     from jaxflex._io import all_or_nothing
     from jaxflex.distributed import is_main
     from jaxflex.identification import identify
+    from jaxflex.kalman import check_disturbance
 
     if args.disturbance is not None and args.criterion != "prediction":
         raise UsageError("--disturbance sets the Kalman filter's noise: give --criterion "
                          "prediction with it")
+    check_disturbance(args.disturbance)
     if (status := enter(args)) is not None:
         return status
     rig, source = rig_of(args)

@@ -13,7 +13,7 @@ import importlib
 import inspect
 import pkgutil
 
-from jaxflex.effects._base import AbstractEffect, Structure, joint_friction
+from jaxflex.effects._base import AbstractEffect, EffectError, Structure, joint_friction
 from jaxflex.effects._channel import CALIBRATED_CHANNELS, ChannelEffect
 from jaxflex.effects.delay import Delay
 from jaxflex.effects.drive_gain import DriveGain
@@ -93,6 +93,7 @@ __all__ = [
     "Delay",
     "DriveGain",
     "AbstractEffect",
+    "EffectError",
     "Gravity",
     "MotorLag",
     "Payload",

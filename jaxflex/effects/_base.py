@@ -20,8 +20,9 @@ with the effect *is* the base model there and score tests can differentiate at t
 
 from __future__ import annotations
 
-from collections.abc import Mapping
-from typing import ClassVar
+import contextlib
+from collections.abc import Iterator, Mapping
+from typing import Any, ClassVar
 
 import equinox as eqx
 import jax.numpy as jnp
@@ -86,6 +87,63 @@ class AbstractEffect(eqx.Module):
         """Output channels after the solve, by name (the simulator's output names, e.g.
         ``root_strain``); the default leaves them unchanged."""
         return dict(readings)
+
+
+class EffectError(ValueError):
+    """An effect's hook raised, or returned what the model cannot use; the one-line message
+    names the effect's class, the hook and what it returned."""
+
+
+def effect_label(effect: AbstractEffect) -> str:
+    """``ClassName ('name')`` of an effect, or of the one a wrapper holds (``inner``)."""
+    inner = getattr(effect, "inner", effect)
+    return f"{type(inner).__name__} ({effect.name!r})"
+
+
+@contextlib.contextmanager
+def blamed(effect: AbstractEffect, hook: str) -> Iterator[None]:
+    """Run one of ``effect``'s hooks: an exception it raises (often in JAX's words, from deep
+    inside a trace) is an :class:`EffectError` that names the effect and the hook first."""
+    try:
+        yield
+    except EffectError:
+        raise
+    except Exception as exc:
+        words = " ".join(str(exc).split())
+        shown = words if len(words) <= 300 else words[:297] + "..."
+        raise EffectError(f"effect {effect_label(effect)}: {hook} raised "
+                          f"{type(exc).__name__}: {shown}") from exc
+
+
+def returned(effect: AbstractEffect, hook: str, value: Any, shape: tuple[int, ...],
+             what: str, *, broadcast: bool = True) -> Any:
+    """``value`` when it is a real array whose shape is ``shape`` (or, with ``broadcast``,
+    broadcasts to it); else an :class:`EffectError` naming the effect, the hook, the shape and
+    dtype it returned and the one expected (``what`` says what that is)."""
+    got = _shape_dtype(value)
+    if got is not None and np.issubdtype(got[1], np.number) and not np.issubdtype(
+            got[1], np.complexfloating):
+        if got[0] == tuple(shape) or (broadcast and _broadcasts(got[0], shape)):
+            return value
+    said = f"an array of shape {got[0]}, {got[1]}" if got else type(value).__name__
+    raise EffectError(f"effect {effect_label(effect)}: {hook} returned {said}; expected real "
+                      f"values of shape {tuple(shape)} ({what})")
+
+
+def _shape_dtype(value: Any) -> tuple[tuple[int, ...], np.dtype] | None:
+    """The shape and dtype of an array (a tracer too) or a Python number; None otherwise."""
+    if hasattr(value, "shape") and hasattr(value, "dtype"):
+        return tuple(value.shape), np.dtype(value.dtype)
+    if isinstance(value, (int, float)) and not isinstance(value, bool):
+        return (), np.dtype(type(value))
+    return None
+
+
+def _broadcasts(got: tuple[int, ...], shape: tuple[int, ...]) -> bool:
+    try:
+        return np.broadcast_shapes(got, shape) == tuple(shape)
+    except ValueError:
+        return False
 
 
 def joint_friction(params: Params, velocity: Array, omega_s: float) -> Array:

@@ -15,7 +15,14 @@ from __future__ import annotations
 import dataclasses
 from typing import Any
 
-from jaxflex.evolve._base import AbstractStrategy, EvolutionResult, State, run, update_best
+from jaxflex.evolve._base import (
+    AbstractStrategy,
+    EvolutionResult,
+    State,
+    StrategyError,
+    run,
+    update_best,
+)
 from jaxflex.evolve.de import DE
 from jaxflex.evolve.ga import GA
 from jaxflex.evolve.pso import PSO, PSOState
@@ -57,6 +64,7 @@ __all__ = [
     "EvolutionResult",
     "PSOState",
     "State",
+    "StrategyError",
     "get_strategy",
     "run",
     "update_best",

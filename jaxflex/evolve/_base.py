@@ -322,6 +322,66 @@ def _evaluate_program(fitness_fn, population):
     return gathered(evaluate(fitness_fn, population))
 
 
+class StrategyError(ValueError):
+    """A strategy's method raised, or returned what the search cannot use; the one-line
+    message names the strategy's class, the method and what it returned."""
+
+
+def _strategy_label(strategy: AbstractStrategy) -> str:
+    return f"{type(strategy).__name__} ({strategy.name!r})"
+
+
+def _traced(strategy: AbstractStrategy, method: str, lower: Callable[[], Any]) -> Any:
+    """``lower()``, which traces ``strategy``'s ``method``: an exception from it (often in
+    JAX's words) is a :class:`StrategyError` that names the strategy and the method first."""
+    try:
+        return lower()
+    except StrategyError:
+        raise
+    except Exception as exc:
+        words = " ".join(str(exc).split())
+        shown = words if len(words) <= 300 else words[:297] + "..."
+        raise StrategyError(f"strategy {_strategy_label(strategy)}: {method} raised "
+                            f"{type(exc).__name__}: {shown}") from exc
+
+
+def _said(value: Any) -> str:
+    """An array as ``shape (7, 3), float64``; anything else by its type."""
+    if hasattr(value, "shape") and hasattr(value, "dtype"):
+        return f"an array of shape {tuple(value.shape)}, {np.dtype(value.dtype)}"
+    return type(value).__name__
+
+
+def _expect(strategy: AbstractStrategy, method: str, what: str, value: Any,
+            shape: tuple[int, ...]) -> None:
+    """Refuse ``value`` unless it is a real floating array of ``shape``."""
+    if (hasattr(value, "shape") and tuple(value.shape) == shape
+            and np.issubdtype(np.dtype(value.dtype), np.floating)):
+        return
+    raise StrategyError(f"strategy {_strategy_label(strategy)}: {method} returned {what} as "
+                        f"{_said(value)}; expected real values of shape {shape} (population "
+                        f"{strategy.population} in {shape[-1]} dimensions)")
+
+
+def _expect_state(strategy: AbstractStrategy, method: str, state: Any, dim: int,
+                  like: State | None = None) -> None:
+    """Refuse a state that is not a :class:`State` of the population's shapes (or, given
+    ``like``, not of the same structure and shapes: the next ask is compiled for those)."""
+    if not isinstance(state, State):
+        raise StrategyError(f"strategy {_strategy_label(strategy)}: {method} returned "
+                            f"{_said(state)} as its state; expected a State")
+    size = strategy.population
+    _expect(strategy, method, "the state's population", state.population, (size, dim))
+    _expect(strategy, method, "the state's fitness", state.fitness, (size,))
+    _expect(strategy, method, "the state's best_x", state.best_x, (dim,))
+    if like is not None:
+        shapes = jax.tree.map(lambda x: (tuple(x.shape), np.dtype(x.dtype)), (like, state))
+        if shapes[0] != shapes[1]:
+            raise StrategyError(f"strategy {_strategy_label(strategy)}: {method} returned a "
+                                f"state unlike the one it was given ({type(state).__name__} "
+                                f"of other fields or shapes); the next ask needs the same")
+
+
 class _Programs(NamedTuple):
     """A run's compiled programs: the first population and its state, the strategy's ask and
     tell of every later generation, and the evaluation of a population, which all share."""
@@ -349,15 +409,28 @@ def _compile(strategy, keys, dim, fitness_fn, init_population) -> _Programs:
         shapes = lowered.postprocess(lowered.lowered.out_info)  # without tracing again
         return jax.tree.map(lambda x: jnp.zeros(x.shape, x.dtype, device=sharding), shapes)
 
-    ask_first = eqx.filter_jit(_ask_first).lower(strategy, keys[0], dim, init_population)
+    size = (strategy.population, dim)
+    ask_first = _traced(strategy, "initialize", lambda: eqx.filter_jit(_ask_first).lower(
+        strategy, keys[0], dim, init_population))
     population = like(ask_first)
+    _expect(strategy, "initialize", "the first population", population, size)
     evaluate_population = eqx.filter_jit(_evaluate_program).lower(fitness_fn, population)
     fitness = like(evaluate_population)
-    tell_first = eqx.filter_jit(_tell_first).lower(strategy, population, fitness)
+    tell_first = _traced(strategy, "start", lambda: eqx.filter_jit(_tell_first).lower(
+        strategy, population, fitness))
     state, _ = like(tell_first)
-    ask = eqx.filter_jit(_ask).lower(strategy, state, keys[1])
-    candidates, asked_state = like(ask)
-    tell = eqx.filter_jit(_tell).lower(strategy, asked_state, candidates, fitness)
+    _expect_state(strategy, "start", state, dim)
+    ask = _traced(strategy, "ask", lambda: eqx.filter_jit(_ask).lower(strategy, state, keys[1]))
+    asked = like(ask)
+    if not (isinstance(asked, tuple) and len(asked) == 2):
+        raise StrategyError(f"strategy {_strategy_label(strategy)}: ask returned "
+                            f"{_said(asked)}; expected (candidates, state)")
+    candidates, asked_state = asked
+    _expect(strategy, "ask", "the candidates", candidates, size)
+    _expect_state(strategy, "ask", asked_state, dim)
+    tell = _traced(strategy, "tell", lambda: eqx.filter_jit(_tell).lower(
+        strategy, asked_state, candidates, fitness))
+    _expect_state(strategy, "tell", like(tell)[0], dim, like=state)
     lowered = (ask_first, tell_first, ask, tell, evaluate_population)
     return _Programs(*(program.compile() for program in lowered))
 
@@ -429,6 +502,9 @@ def run(
     programs = _compile(strategy, keys, dim, fitness_fn, init_population)
     compiled = time.perf_counter()
     population = programs.ask_first(strategy, keys[0], dim, init_population)
+    if not bool(jnp.all(jnp.isfinite(population))):
+        raise StrategyError(f"strategy {_strategy_label(strategy)}: initialize returned a "
+                            "first population with NaN or infinite values")
     fitness = programs.evaluate(fitness_fn, population)
     state, summary = programs.tell_first(strategy, population, fitness)
 
