@@ -131,6 +131,7 @@ def run(args: argparse.Namespace) -> int:
     print(report.table(), end="")
     for line in report.explanations():
         print(f"  {line}")
+    print(report.summary(), end="")
     paths = []
     with all_or_nothing():
         if args.json:
