@@ -56,9 +56,10 @@ INPUT_FRACTION = 0.01
 """The input is on where its absolute value exceeds this fraction of its peak."""
 REST_HINT = (
     "the simulation starts from rest, so start the window where the arm is still "
-    "(window=(t0, t1))"
+    "(window=(t0, t1)), or fit where the record starts (initial_state='estimate', slower)"
 )
-"""How a rest message ends; a command line replaces ``window=(t0, t1)`` by its option."""
+"""How a rest message ends; a command line replaces ``window=(t0, t1)`` and
+``initial_state='estimate'`` by its options."""
 _RELATIVE_SLACK = 1e-9
 _ULPS = 8
 
