@@ -168,7 +168,7 @@ class Diagnosis:
             if xc.significant:
                 lines.append(
                     f"  residual correlates with the torque: peak {xc.peak_value:+.2f} at lag "
-                    f"{1e3 * xc.peak_lag_s:+.0f} ms"
+                    f"{1e3 * xc.peak_lag_s:+.3g} ms"
                 )
             if c.spectrum.peaks_hz:
                 peaks = ", ".join(

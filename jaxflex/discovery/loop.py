@@ -376,8 +376,11 @@ def discover(
             p_value=added.get("p"), explained=added.get("explained"), predictions=preds,
             holdout_predictions=tuple(held_preds or ()),
         ))
-        found = "none confirmed" if best is None else f"confirmed {confirmations[best].effect}"
-        bar.set_message(f"{len(ranking)} candidates tested; {found}")
+        found = ("no refit confirmed one" if best is None else
+                 f"the refit confirmed {confirmations[best].effect}: added (withdrawn at the "
+                 "end if it leaves most of the misfit)")
+        bar.set_message(f"after '{steps[-1].structure}': {len(ranking)} candidates tested; "
+                        f"{found}")
         if best is None:
             break
         conf, (slot, x, cost) = confirmations[best], refits[best]
