@@ -259,3 +259,58 @@ def test_the_frf_names_the_drives_unit_and_marks_the_resonance_as_fitted():
     assert "model resonance (as fitted)" in [t.get_text() for t in mag.get_legend().get_texts()]
     assert ("Model resonances as fitted (its FRF's peaks): 2.90 Hz; free-hub modes: 4.35 Hz."
             in comparison.table())
+
+
+# --- a withdrawn effect's steps ---------------------------------------------------------------
+
+
+def _scored(name: str, lr: float | None, explained: float = 0.0) -> ScoreResult:
+    """A scored candidate with its evidence; refitted (and confirmed) where ``lr`` is given."""
+    effect = get_effect(name)
+    result = _result(effect)
+    refit = None if lr is None else Confirmation(
+        effect=name, lr=lr, p_value=1e-9, delta_bic=-lr + 7.0, explained=explained,
+        confirmed=True, params={effect.parameters[0].name: 0.01}, level=0.002)
+    if lr is None:
+        result = result.__class__(**{**result.__dict__, "p_value": 0.4, "significant": False,
+                                     "statistic": 0.7})
+    ev = collect_evidence(result, effect, None, refit, level=0.002)
+    return result.__class__(**{**result.__dict__, "evidence": ev})
+
+
+def test_a_withdrawn_effects_steps_keep_their_rankings_and_say_what_it_removed():
+    """gravity, confirmed after 'base', removes 20 % of the misfit, does not lower a held-out
+    error: its step is cut, and the JSON still holds both steps' rankings."""
+    import types
+
+    from jaxflex.discovery.explain import annotate
+    from jaxflex.discovery.loop import MIN_EXPLAINED, _withdraw, withdrawn_note
+    from jaxflex.discovery.report import DiscoveryFit, DiscoveryReport, Step
+
+    misfit = types.SimpleNamespace(consistent_with_noise=False)
+
+    def step(added, ranking, explained=None):
+        fit = DiscoveryFit(model=None, params={"J_h": 0.006}, cost=900.0, n_params=1,
+                           n_samples=1000, noise={}, intervals={"J_h": (0.0059, 0.0061)})
+        label = "base" if added is None else f"base + {added}"
+        return Step(added=added, fit=fit, nrmse={"acc": 4.0}, frf_nrmse=2.0, holdout=None,
+                    diagnosis=misfit, ranking=tuple(ranking), explained=explained, label=label)
+
+    steps = [step(None, [_scored("gravity", 180.0, 0.2), _scored("payload", None)]),
+             step("gravity", [_scored("payload", None)], explained=0.2)]
+    kept, cut = _withdraw(steps)
+    assert [s.structure for s in kept] == ["base"] and [s.added for s in cut] == ["gravity"]
+    every = annotate([*kept, *cut], ["gravity"], MIN_EXPLAINED)
+    report = DiscoveryReport(
+        steps=tuple(every[:1]), unexplained=None, withdrawn=("gravity",), alpha=0.01,
+        candidates=("gravity", "payload"), records=(), holdout=None, settings={},
+        wall_time=1.0, noise_floor={}, withdrawn_steps=tuple(every[1:]))
+    data = report.to_dict()
+    assert [[(e["after"], e["effect"], e["status"]) for e in r] for r in data["ranking"]] == [
+        [("base", "gravity", "withdrawn"), ("base", "payload", "not_significant")],
+        [("base + gravity", "payload", "not_significant")]]
+    assert [s["added"] for s in data["withdrawn_steps"]] == ["gravity"]
+    assert data["steps"][0]["intervals"] == {"J_h": [0.0059, 0.0061]}
+    assert withdrawn_note(cut, held_out=True) == (
+        "gravity removed 20 % of the misfit above the noise, less than 90 % and did not lower "
+        "the held-out error; withdrawn")

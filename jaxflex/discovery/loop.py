@@ -401,11 +401,7 @@ def discover(
         else:
             note = "every candidate is in the model already"
         if withdrawn:
-            held = " and did not lower the held-out error" if holdout is not None else ""
-            removed = ", ".join(f"{s.added} removed {percent(s.explained)}" for s in cut
-                                if s.added)
-            note += (f" ({removed} of the misfit above the noise, less than "
-                     f"{percent(MIN_EXPLAINED)}{held}; withdrawn)")
+            note += f" ({withdrawn_note(cut, holdout is not None)})"
         unexplained["message"] = f"{unexplained['message']}; {note}"
     return DiscoveryReport(
         steps=tuple(steps),
@@ -490,6 +486,17 @@ def _withdraw(steps: list[Step]) -> tuple[list[Step], list[Step]]:
                 and not _predicts_better(steps[i - 1], step)):
             return steps[:i], steps[i:]
     return steps, []
+
+
+def withdrawn_note(cut: Sequence[Step], held_out: bool) -> str:
+    """What the withdrawn effects of the steps ``cut`` did, from their own refits: the share
+    of the misfit above the noise each removed (a negative one: it added misfit)."""
+    held = " and did not lower the held-out error" if held_out else ""
+    removed = ", ".join(
+        f"{s.added} removed {percent(s.explained)}" if s.explained >= 0 else
+        f"{s.added} added {percent(-s.explained)}" for s in cut if s.added)
+    return (f"{removed} of the misfit above the noise, less than {percent(MIN_EXPLAINED)}"
+            f"{held}; withdrawn")
 
 
 def _predicts_better(before: Step, after: Step) -> bool:
