@@ -19,6 +19,7 @@ from jaxflex import initial as _initial
 from jaxflex._io import to_jsonable, write_json
 from jaxflex.arm import MAX_ELEMENTS
 from jaxflex.evolve import STRATEGIES, AbstractStrategy
+from jaxflex.intervals import widening_span
 from jaxflex.model import Model
 from jaxflex.refine import Refinement
 from jaxflex.testbed import Testbed
@@ -535,16 +536,6 @@ def parameter_table(params: Mapping[str, float], intervals: Mapping[str, tuple[f
     return lines
 
 
-def widening_span(low: float, high: float) -> str:
-    """The robust intervals' widths over the nominal ones, in words that say which way:
-    ``"1.2-6.85 x wider"``, ``"0.827 x narrower to 6.85 x wider"``."""
-    if low >= 1:
-        return f"{low:.3g}-{high:.3g} x wider"
-    if high <= 1:
-        return f"{1 / high:.3g}-{1 / low:.3g} x narrower"
-    return f"{1 / low:.3g} x narrower to {high:.3g} x wider"
-
-
 def load_fit(path: str | os.PathLike) -> Fit:
     """Read a fit file written by :meth:`Fit.to_json` (or ``jaxflex identify --out``)."""
     return Fit.from_json(path)
@@ -590,5 +581,4 @@ __all__ = [
     "load_fit",
     "parameter_table",
     "parameter_units",
-    "widening_span",
 ]

@@ -28,7 +28,7 @@ from jaxflex.discovery.explain import claims, collect_evidence, percent, sentenc
 from jaxflex.discovery.report import Confirmation
 from jaxflex.discovery.scores import ScoreResult
 from jaxflex.effects import get_effect
-from jaxflex.fit import widening_span
+from jaxflex.intervals import widening_span
 from jaxflex.parameters import ParameterSpace, ParameterSpec
 from jaxflex.records import RecordWarning
 from jaxflex.sensors import StrainGauge
@@ -77,6 +77,7 @@ def test_robust_intervals_are_said_to_narrow_or_widen():
     assert widening_span(1.2, 6.85) == "1.2-6.85 x wider"
     assert widening_span(0.827, 6.85) == "1.21 x narrower to 6.85 x wider"
     assert widening_span(0.5, 0.8) == "1.25-2 x narrower"
+    assert widening_span(18.71, 18.74) == "18.7 x wider"  # not "18.7-18.7"
 
 
 def test_a_share_is_never_minus_zero_percent():

@@ -195,7 +195,7 @@ class DiscoveryReport:
         lines.append(f"noise floor (NRMSE the measurement noise alone gives): {floor}")
         for channel, level in self.noise.items():
             lines.append(f"noise level {channel}: σ = "
-                         f"{_amount(level.sigma, self.units.get(channel, ''))} "
+                         f"{self.final.diagnosis.amount(level.sigma, channel, 4)} "
                          f"({level.describe()})")
         for s in (*self.steps, *self.withdrawn_steps):
             if s.ranking:
@@ -210,13 +210,6 @@ class DiscoveryReport:
         else:
             lines.append("residuals are consistent with the measurement noise")
         return "\n".join(lines) + "\n"
-
-    @property
-    def units(self) -> dict[str, str]:
-        """Each channel's unit: its sensor's, or the simulator output's."""
-        from jaxflex.comparison import channel_units
-
-        return channel_units(self.base.fit.model, self.channels)
 
     def summary(self) -> str:
         """The final model as ``jaxflex identify`` prints a fit: each parameter's value, its
@@ -260,11 +253,6 @@ class DiscoveryReport:
             "timing": {"wall_time_s": self.wall_time},  # times only here: the rest reproduces
             "provenance": provenance(),
         })
-
-
-def _amount(value: float, unit: str) -> str:
-    """A value with its unit (none for a ratio written ``"1"``)."""
-    return f"{value:.4g}" if unit in ("", "1") else f"{value:.4g} {unit}"
 
 
 def _fmt(x: float) -> str:
