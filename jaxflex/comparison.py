@@ -223,6 +223,13 @@ class Comparison:
         values = {o: [getattr(r, metric)[o] for r in rows if o in r.nrmse] for o in self.channels}
         return {o: float(np.mean(v)) if v else math.nan for o, v in values.items()}
 
+    @property
+    def model_resonances_hz(self) -> tuple[float, ...]:
+        """The resonances of the model as fitted: the peaks of its simulated FRFs, where its hub
+        inertia, friction and the hub's real boundary act as in the records (a hub held by
+        friction rings lower than the free-hub modes of :attr:`resonances_hz`)."""
+        return merged_peaks(p for r in self.rows for p in r.model_peaks_hz)
+
     def table(self) -> str:
         """The Table-3-style text table: one row per record, then notes on the definitions."""
         return _format_table(self)
@@ -377,7 +384,7 @@ def compare(
         frf_settings=settings,
         noise=noise,
         channels=tuple(channels),
-        units=channel_units(model, channels),
+        units=channel_units(model, (*channels, dataset[0].input_name)),
         link=link,
         input_name=dataset[0].input_name,
     )
@@ -391,8 +398,9 @@ def link_channel(model: Model, channels: Sequence[str]) -> str:
 
 
 def channel_units(model: Model, channels: Sequence[str]) -> dict[str, str]:
-    """Each channel's unit: its sensor's, or the simulator output's."""
-    own = {s.channel: s.channel_unit for s in model.sensors}
+    """Each channel's unit: its sensor's, the drive's for the input column, or the simulator
+    output's."""
+    own = {model.drive.name: model.drive.unit} | {s.channel: s.channel_unit for s in model.sensors}
     return {c: own.get(c, KNOWN_UNITS.get(c, "")) for c in channels}
 
 
@@ -694,7 +702,9 @@ def _format_table(c: Comparison) -> str:
         shown = [f"{f:.2f}" for f in c.resonances_hz if f <= c.frf_settings.f_max] or [
             f"{c.resonances_hz[0]:.2f}"
         ]
-        notes.append(f"Model resonances (free hub): {', '.join(shown)} Hz.")
+        peaks = ", ".join(f"{f:.2f}" for f in c.model_resonances_hz)
+        fitted = f"Model resonances as fitted (its FRF's peaks): {peaks} Hz; " if peaks else ""
+        notes.append(f"{fitted}free-hub modes: {', '.join(shown)} Hz.")
     rule = "-" * len(fmt(header))
     notes = [textwrap.fill(n, 100, subsequent_indent="  ") for n in notes]
     return "\n".join([fmt(header), rule, *map(fmt, lines), rule, *notes]) + "\n"
@@ -721,6 +731,18 @@ def _channel_notes(c: Comparison) -> list[str]:
         notes.append("no motion: the measured channel is zero throughout, so no NRMSE is "
                      f"defined; the model's RMS error there: {', '.join(still)}.")
     return notes
+
+
+def merged_peaks(peaks: Iterable[float], rtol: float = 0.03) -> tuple[float, ...]:
+    """Peak frequencies of several records as one list: ascending, those within ``rtol`` of
+    the previous one's group averaged into one."""
+    groups: list[list[float]] = []
+    for f in sorted(peaks):
+        if groups and f <= groups[-1][0] * (1.0 + rtol):
+            groups[-1].append(f)
+        else:
+            groups.append([f])
+    return tuple(float(np.mean(g)) for g in groups)
 
 
 def _scientific(x: float) -> str:

@@ -19,6 +19,7 @@ from jaxflex import initial as _initial
 from jaxflex._io import to_jsonable, write_json
 from jaxflex.arm import MAX_ELEMENTS
 from jaxflex.evolve import STRATEGIES, AbstractStrategy
+from jaxflex.intervals import widening_span
 from jaxflex.model import Model
 from jaxflex.refine import Refinement
 from jaxflex.testbed import Testbed
@@ -174,37 +175,14 @@ class Fit:
     def summary(self) -> str:
         """A text table: value, nominal interval and relative half-width of each parameter,
         and the robust half-width beside it; what the intervals assume, in words."""
-        from jaxflex.parameters import BASE_PARAMETERS
-
-        units = {s.name: s.unit for s in BASE_PARAMETERS}
-        units.update({s.name: s.unit for s in self.model.space.specs})
-        pct = f"{100 * self.level:g} %"
-        robust = bool(self.robust_intervals)
         lines = [
             f"{self.method.upper()} seed {self.seed}: cost {self.cost:.6g} "
             f"(search {self.cost_search:.6g}, rms NRMSE {self.nrmse:.4g} %)",
-            f"{'parameter':<10} {'value':>12} {pct + ' interval':>29} {'±%':>8}"
-            + (f" {'robust ±%':>10}" if robust else "") + "  unit",
+            *parameter_table(self.params, self.intervals, parameter_units(self.model),
+                             level=self.level, robust=self.robust_intervals,
+                             unidentifiable=self.unidentifiable,
+                             poorly=self.poorly_identifiable),
         ]
-        for n in self.params:
-            value = self.params[n]
-            unit = units.get(n, "")
-            if n in self.unidentifiable:
-                lines.append(f"{n:<10} {value:>12.6g}  not identifiable from these records"
-                             f"  {unit}")
-            elif n in self.intervals:
-                lo, hi = self.intervals[n]
-                rel = _half_width_percent(value, lo, hi)
-                flag = "  poorly identifiable" if n in self.poorly_identifiable else ""
-                extra = ""
-                if robust and n in self.robust_intervals:
-                    extra = f" {_half_width_percent(value, *self.robust_intervals[n]):>10.3g}"
-                lines.append(
-                    f"{n:<10} {value:>12.6g} [{lo:>12.6g}, {hi:>12.6g}] {rel:>8.3g}{extra}  "
-                    f"{unit}{flag}"
-                )
-            else:
-                lines.append(f"{n:<10} {value:>12.6g} {'(fixed)':>29} {'':>8}  {unit}")
         if self.intervals:
             lines.append(self.interval_note())
         if self.refinement is not None:
@@ -225,7 +203,7 @@ class Fit:
         if self.model_conditional:
             widen = [w for w in self.residual_checks.get("widening", {}).values()
                      if w is not None and math.isfinite(w)]
-            span = f" ({min(widen):.3g}-{max(widen):.3g} x wider)" if widen else ""
+            span = f" ({widening_span(min(widen), max(widen))})" if widen else ""
             return ("intervals: CONDITIONAL on the model - they assume the model is right and "
                     "the noise white, and the residuals are not white; read the robust "
                     f"(HAC) ones{span}")
@@ -515,6 +493,49 @@ def check_fit(data: Any) -> None:
         raise ValueError(f"field 'level': expected a number in (0, 1), got {data['level']!r}")
 
 
+def parameter_units(model: Model) -> dict[str, str]:
+    """Each parameter's unit: the base model's and its effects' (:class:`ParameterSpec.unit`)."""
+    from jaxflex.parameters import BASE_PARAMETERS
+
+    units = {s.name: s.unit for s in BASE_PARAMETERS}
+    units.update({s.name: s.unit for s in model.space.specs})
+    return units
+
+
+def parameter_table(params: Mapping[str, float], intervals: Mapping[str, tuple[float, float]],
+                    units: Mapping[str, str], *, level: float = 0.95,
+                    robust: Mapping[str, tuple[float, float]] | None = None,
+                    unidentifiable: Sequence[str] = (), poorly: Sequence[str] = (),
+                    started: Mapping[str, float] | None = None) -> list[str]:
+    """The lines of a parameter table: value, ``level`` interval, relative half-width (and the
+    robust one beside it) and unit of each of ``params``; a parameter without an interval is
+    held (``(fixed)``), or, named in ``started``, was fitted from that start without one."""
+    pct = f"{100 * level:g} %"
+    robust = robust or {}
+    lines = [f"{'parameter':<10} {'value':>12} {pct + ' interval':>29} {'±%':>8}"
+             + (f" {'robust ±%':>10}" if robust else "") + "  unit"]
+    for n, value in params.items():
+        unit = units.get(n, "")
+        if n in unidentifiable:
+            lines.append(f"{n:<10} {value:>12.6g}  not identifiable from these records"
+                         f"  {unit}")
+        elif n in intervals:
+            lo, hi = intervals[n]
+            rel = _half_width_percent(value, lo, hi)
+            flag = "  poorly identifiable" if n in poorly else ""
+            extra = ""
+            if robust and n in robust:
+                extra = f" {_half_width_percent(value, *robust[n]):>10.3g}"
+            lines.append(f"{n:<10} {value:>12.6g} [{lo:>12.6g}, {hi:>12.6g}] {rel:>8.3g}{extra}  "
+                         f"{unit}{flag}")
+        elif started and n in started:
+            lines.append(f"{n:<10} {value:>12.6g} {f'(started at {started[n]:.3g})':>29} "
+                         f"{'':>8}  {unit}")
+        else:
+            lines.append(f"{n:<10} {value:>12.6g} {'(fixed)':>29} {'':>8}  {unit}")
+    return lines
+
+
 def load_fit(path: str | os.PathLike) -> Fit:
     """Read a fit file written by :meth:`Fit.to_json` (or ``jaxflex identify --out``)."""
     return Fit.from_json(path)
@@ -558,4 +579,6 @@ __all__ = [
     "check_fit",
     "describe_model",
     "load_fit",
+    "parameter_table",
+    "parameter_units",
 ]

@@ -338,7 +338,7 @@ def uncertainty(
             "the intervals assume the model is right and the noise white, and the residuals "
             f"of {', '.join(coloured)} are not white (Ljung-Box p < {white_alpha:g}): "
             "read the robust intervals"
-            + (f", which widen the nominal ones by a factor {min(widen):.3g}-{max(widen):.3g}"
+            + (f" ({widening_span(min(widen), max(widen))} than the nominal ones)"
                if widen else "")
         )
     unit = np.asarray(objective.space.to_unit(objective.space.from_vector(x)))
@@ -373,6 +373,21 @@ def uncertainty(
         robust_upper=robust_upper,
         residual_checks=checks,
     )
+
+
+def widening_span(low: float, high: float) -> str:
+    """The robust intervals' widths over the nominal ones, in words that say which way:
+    ``"1.2-6.85 x wider"``, ``"1.21 x narrower to 6.85 x wider"`` (from the ratios
+    0.827-6.85)."""
+
+    def span(a: float, b: float) -> str:
+        return f"{a:.3g}" if f"{a:.3g}" == f"{b:.3g}" else f"{a:.3g}-{b:.3g}"
+
+    if low >= 1:
+        return f"{span(low, high)} x wider"
+    if high <= 1:
+        return f"{span(1 / high, 1 / low)} x narrower"
+    return f"{1 / low:.3g} x narrower to {high:.3g} x wider"
 
 
 def _inverse(a: np.ndarray, rcond: float = 1e-15) -> tuple[np.ndarray, np.ndarray]:
@@ -451,4 +466,5 @@ __all__ = [
     "Uncertainty",
     "phi_jacobian",
     "uncertainty",
+    "widening_span",
 ]

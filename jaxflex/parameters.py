@@ -186,8 +186,10 @@ class ParameterSpace:
         xp = _namespace(x)
         lo, hi, log = xp.asarray(self._lower), xp.asarray(self._upper), xp.asarray(self._log)
         safe_x = xp.where(log, xp.maximum(x, lo * 1e-300), 1.0)
+        # a linear parameter's bounds may be negative (a sensor mounted the other way): the
+        # log side of the where sees 2/1 for it, never the log of its bounds
         u_log = (xp.log(safe_x) - xp.log(xp.where(log, lo, 1.0))) / xp.where(
-            log, xp.log(hi / xp.where(log, lo, 1.0)), 1.0
+            log, xp.log(xp.where(log, hi, 2.0) / xp.where(log, lo, 1.0)), 1.0
         )
         u_lin = (x - lo) / (hi - lo)
         return xp.where(log, u_log, u_lin)

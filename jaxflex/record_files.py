@@ -50,6 +50,7 @@ def load_record(
     resample: bool = False,
     unit_check: bool = True,
     channels: Iterable[str] = (),
+    drive: str | None = None,
 ) -> Record:
     """Read and validate a record from a ``.csv`` or ``.npz`` file.
 
@@ -62,16 +63,27 @@ def load_record(
     gap). Columns whose units look wrong
     (time in ms, angle in degrees, torque far off scale; :func:`check_units`) are an error
     unless ``unit_check=False``; a rig's own channels are in the units its rig declares, and
-    the rig checks them (:func:`jaxflex.measured.model_record`).
+    the rig checks them (:func:`jaxflex.measured.model_record`). ``drive`` is a rig's input
+    column (its drive's name): of a file holding several input columns (a command and the
+    current it drew), that one is read and the others are ignored, with a
+    :class:`RecordWarning` that names them.
     """
     path = Path(path)
     suffix = _suffix(path)
     where = str(path)
     own = tuple(channels)
     if suffix == ".csv":
-        columns, row, metadata = _read_csv(path, own)
+        columns, row, metadata = _read_csv(path, own, drive)
     else:
-        columns, row, metadata = _read_npz(path, own)
+        columns, row, metadata = _read_npz(path, own, drive)
+    ignored = [c for c in INPUT_COLUMNS if c in columns and c != drive]
+    if len(ignored) < len([c for c in INPUT_COLUMNS if c in columns]) and ignored:
+        columns = {c: a for c, a in columns.items() if c not in ignored}
+        warnings.warn(
+            f"{where}: column(s) {ignored} ignored: the rig's drive reads column {drive!r}",
+            RecordWarning,
+            stacklevel=2,
+        )
     columns = _check_arrays(columns, where, row, min_samples=MIN_FILE_SAMPLES)
     n = columns["time"].shape[0]
     if resample and _irregular_step(columns["time"]) is not None:
@@ -109,9 +121,10 @@ def load_dataset(
     resample: bool = False,
     unit_check: bool = True,
     channels: Iterable[str] = (),
+    drive: str | None = None,
 ) -> Dataset:
     """Load records into a :class:`Dataset`; a directory means all its .csv/.npz files, sorted
-    (sub-directories are skipped, whatever their names); ``channels`` as in
+    (sub-directories are skipped, whatever their names); ``channels`` and ``drive`` as in
     :func:`load_record`."""
     if isinstance(paths, (str, os.PathLike)):
         root = Path(paths)
@@ -126,7 +139,8 @@ def load_dataset(
     else:
         files = [Path(p) for p in paths]
     own = tuple(channels)
-    return Dataset(load_record(p, resample=resample, unit_check=unit_check, channels=own)
+    return Dataset(load_record(p, resample=resample, unit_check=unit_check, channels=own,
+                               drive=drive)
                    for p in files)
 
 
@@ -177,7 +191,7 @@ def save_npz(record: Record, path: str | os.PathLike, *, overwrite: bool = False
 
 
 def _read_csv(
-    path: Path, own: Sequence[str] = ()
+    path: Path, own: Sequence[str] = (), drive: str | None = None
 ) -> tuple[dict[str, np.ndarray], RowLabel, dict[str, str]]:
     """Parse a CSV record into columns, a row labeller (file line numbers) and metadata."""
     where = str(path)
@@ -202,7 +216,7 @@ def _read_csv(
             continue
         elif header is None:
             header, header_line = [_unquote(c) for c in stripped.split(",")], lineno
-            _check_header(header, where, lineno, own)
+            _check_header(header, where, lineno, own, drive)
         else:
             lines.append(lineno)
             rows.append([_unquote(c) for c in stripped.split(",")])
@@ -258,7 +272,8 @@ def _parse_comment(text: str, metadata: dict[str, str], where: str, lineno: int)
     metadata[key] = value
 
 
-def _check_header(header: list[str], where: str, lineno: int, own: Sequence[str] = ()) -> None:
+def _check_header(header: list[str], where: str, lineno: int, own: Sequence[str] = (),
+                  drive: str | None = None) -> None:
     """Refuse empty, duplicated or missing column names, suggesting close matches."""
     if len(header) == 1:
         for sep, label in ((";", "semicolons"), ("\t", "tabs")):
@@ -283,7 +298,7 @@ def _check_header(header: list[str], where: str, lineno: int, own: Sequence[str]
     details = _missing_columns(header, "column", own)
     if details:
         raise RecordError(f"{where}: line {lineno} (header): {details}; header is {header}")
-    _check_inputs_and_outputs(header, f"{where}: line {lineno} (header)")
+    _check_inputs_and_outputs(header, f"{where}: line {lineno} (header)", drive)
 
 
 def _parse_cell(cell: str, where: str, lineno: int, column: str) -> float:
@@ -300,7 +315,7 @@ def _parse_cell(cell: str, where: str, lineno: int, column: str) -> float:
 
 
 def _read_npz(
-    path: Path, own: Sequence[str] = ()
+    path: Path, own: Sequence[str] = (), drive: str | None = None
 ) -> tuple[dict[str, np.ndarray], RowLabel, dict[str, str]]:
     """Read an NPZ record: one array per column, optional JSON metadata."""
     where = str(path)
@@ -332,7 +347,7 @@ def _read_npz(
     details = _missing_columns(list(arrays), "array", own)
     if details:
         raise RecordError(f"{where}: {details}; arrays are {list(arrays)}")
-    _check_inputs_and_outputs(list(arrays), where)
+    _check_inputs_and_outputs(list(arrays), where, drive)
     ordered = {c: arrays.pop(c) for c in REQUIRED_COLUMNS if c in arrays} | arrays
     return ordered, _index_label, {str(k): str(v) for k, v in metadata.items()}
 

@@ -41,7 +41,7 @@ KNOWN_UNITS: dict[str, str] = {
     "joint_velocity": "rad/s",
     "joint_acceleration": "rad/s^2",
     "tip_deflection": "m",
-    "root_strain": "1",
+    "root_strain": "m/m",
     "deflection_angle": "rad",
     "joint_torque": "N m",
 }
@@ -394,10 +394,12 @@ def _check_uniform(time: np.ndarray, where: str, row: RowLabel, hint: str = "") 
         )
 
 
-def _check_inputs_and_outputs(names: Sequence[str], where: str) -> None:
-    """Exactly one input column (:data:`INPUT_COLUMNS`) and at least one output column."""
+def _check_inputs_and_outputs(names: Sequence[str], where: str, drive: str | None = None
+                              ) -> None:
+    """Exactly one input column (:data:`INPUT_COLUMNS`), or several of which one is the
+    ``drive``'s, and at least one output column."""
     inputs = [c for c in INPUT_COLUMNS if c in names]
-    if len(inputs) != 1:
+    if len(inputs) != 1 and drive not in inputs:
         found = f"found {inputs}" if inputs else "found none"
         raise RecordError(
             f"{where}: a record needs exactly one input column of {list(INPUT_COLUMNS)}; {found}"

@@ -67,9 +67,10 @@ REST_KEY = "rest"
 """The header key under which a record states its own rest (:func:`rest_note`)."""
 REST_HINT = (
     "the simulation starts from rest, so start the window where the arm is still "
-    "(window=(t0, t1))"
+    "(window=(t0, t1)), or fit where the record starts (initial_state='estimate', slower)"
 )
-"""How a rest message ends; a command line replaces ``window=(t0, t1)`` by its option."""
+"""How a rest message ends; a command line replaces ``window=(t0, t1)`` and
+``initial_state='estimate'`` by its options."""
 _RELATIVE_SLACK = 1e-9
 _ULPS = 8
 

@@ -251,7 +251,7 @@ class StrainGauge(_LinkSensor):
 
     @property
     def unit(self) -> str:  # type: ignore[override]
-        return "rad" if self.calibration == "deflection_angle" else "1"
+        return "rad" if self.calibration == "deflection_angle" else "m/m"
 
     def scale(self, model: Model) -> float:
         """Reading per unit curvature: ``h/2`` (strain) or ``L²/(3(L − x))`` (angle)."""

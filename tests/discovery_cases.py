@@ -82,12 +82,15 @@ def check_claims(report):
     data = json.loads(json.dumps(report.to_dict()))
     assert set(data["claim_rules"]) == set(RULES)
     steps = data["steps"]
-    ranked = [s for s in report.steps if s.ranking]
+    ranked = [s for s in (*report.steps, *report.withdrawn_steps) if s.ranking]
     kept = set(report.added)
     table = report.table()
     for step, entries in zip(ranked, data["ranking"], strict=True):
-        i = report.steps.index(step)
-        added_next = report.steps[i + 1].added if i + 1 < len(report.steps) else None
+        every = [*report.steps, *report.withdrawn_steps]
+        i = every.index(step)
+        added_next = every[i + 1].added if i + 1 < len(every) else None
+        added_next = None if added_next in report.withdrawn else added_next
+        assert {e["after"] for e in entries} == {step.structure}
         # the ranking: monotone in the stated criterion, printed in that order
         keys = [_key(e) for e in entries]
         assert keys == sorted(keys), [(e["effect"], k) for e, k in zip(entries, keys, strict=True)]
@@ -120,7 +123,10 @@ def check_claims(report):
                 s = ev["score"]
                 assert s["p_value"] >= s["level"] and not s["significant"]
             # every refitted candidate states its refit gain, the others the first-order one
-            if ev["refit"] is not None:
+            if ev["refit"] is not None and ev["refit"]["lr"] < 0:  # never a negative LR
+                assert f"−2 log L rose by {-ev['refit']['lr']:.3g}" in text
+                assert "LR = -" not in text and "LR = −" not in text
+            elif ev["refit"] is not None:
                 assert f"LR = {ev['refit']['lr']:.3g}" in text
             else:
                 assert f"S = {ev['score']['S']:.3g}" in text

@@ -42,6 +42,8 @@ def test_identify_with_an_arm_then_validate_every_record(rotflex_csv, tmp_path, 
     assert main(window) == 2
     err = capsys.readouterr().err
     assert "does not start at rest at t = 10 s" in err and "(--window T0:T1)" in err
+    assert err.rstrip().endswith("or fit where the record starts (--initial-state estimate, "
+                                 "slower)")
     assert "rest tolerance" in err and err.count("\n") == 1
     assert main([*window[:-1], "20"]) == 2
     assert "--window 20: expected T0:T1, T0:, :T1 or auto" in capsys.readouterr().err

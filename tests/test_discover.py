@@ -137,7 +137,8 @@ def test_candidates_by_name_profile_stribeck_and_validate():
     named = candidate_set(["sensor_gain:joint_angle"], ["joint_angle"])  # named: tested
     assert [c.name for c in named] == ["sensor_gain:joint_angle"]
     stribeck = next(c for c in cands if c.name == "stribeck")
-    assert len(stribeck.effects) == len(Stribeck.grid()) and stribeck.label(0).startswith("v_s=")
+    assert len(stribeck.effects) == len(Stribeck.grid())
+    assert stribeck.label(0) == f"v_s started at {Stribeck.grid()[0].v_s:g}"
     assert len(candidate_set([Stribeck(v_s=0.2)])[0].effects) == 1
     with pytest.raises(ValueError, match="unknown effect 'paylod'"):
         candidate_set(["paylod"])
@@ -309,6 +310,33 @@ def test_discover_adds_the_hidden_payload(payload_case):
     assert set(data["ranking"][0][0]) >= {"effect", "statistic", "p_value"}
     assert data["unexplained"] is None
     assert "payload" in report.table()
+
+
+def test_cli_discover_prints_the_final_model_with_its_intervals(payload_case, tmp_path,
+                                                                 capsys):
+    """The final model as `identify` prints a fit: each parameter, its 95 % interval and unit,
+    the same numbers as the JSON; every step's ranking in the JSON, named by its step."""
+    records, _, _ = payload_case
+    files, initial = saved_case(records, tmp_path)
+    out = tmp_path / "out.json"
+    assert main(["discover", *files, "--initial", str(initial), "--candidates", "payload",
+                 "--max-steps", "1", "--json", str(out), "--quiet"]) == 0
+    said = capsys.readouterr().out
+    data = json.loads(out.read_text())
+    final = data["steps"][-1]
+    assert final["structure"] == "base + payload"
+    assert "final model: base + payload (−2 log L = " in said
+    assert "\nparameter         value                 95 % interval       ±%  unit\n" in said
+    value, (lo, hi) = final["params"]["m_p"], final["intervals"]["m_p"]
+    assert lo < value < hi and value == pytest.approx(0.03, rel=0.05)
+    assert f"m_p        {value:>12.6g} [{lo:>12.6g}, {hi:>12.6g}]" in said
+    line = next(ln for ln in said.splitlines() if ln.startswith("m_p "))
+    assert line.split()[-1] == "kg"
+    assert set(final["intervals"]) == set(final["params"])  # none fixed: every one fitted
+    assert "noise level tip_acceleration: σ = " in said and " m/s^2 (" in said
+    # one ranking per step that tested candidates, each entry naming its step
+    assert [{e["after"] for e in r} for r in data["ranking"]] == [{"base"}]
+    assert data["withdrawn_steps"] == []
 
 
 def test_discover_validates_its_arguments(payload_case):

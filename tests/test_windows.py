@@ -195,4 +195,5 @@ def test_auto_on_a_record_that_never_rests_says_so():
         "--window run1=auto: record 'run1' is never at rest for 0.05 s before it moves: from "
         "its first sample at t = 5 s 'joint_angle' changes by 0.0997 rad (rest tolerance 0.00307 "
         "rad: 2 steps of 0.00153 rad) in the first 0.05 s; the simulation starts from rest, so "
-        "start the window where the arm is still (--window run1=T0:T1)"))
+        "start the window where the arm is still (--window run1=T0:T1), or fit where the "
+        "record starts (--initial-state estimate, slower)"))

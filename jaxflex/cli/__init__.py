@@ -40,9 +40,10 @@ class UsageError(ValueError):
 
 
 def load_records(paths: Sequence[str], *, resample: bool, unit_check: bool = True,
-                 channels: Sequence[str] = ()):
+                 channels: Sequence[str] = (), drive: str | None = None):
     """Records from files and directories, each file once (``channels``: a rig's sensor
-    channels, :func:`jaxflex.data.load_record`); problems are UsageErrors."""
+    channels, ``drive`` its input column, :func:`jaxflex.data.load_record`); problems are
+    UsageErrors."""
     from pathlib import Path
 
     from jaxflex._io import same_file
@@ -56,10 +57,10 @@ def load_records(paths: Sequence[str], *, resample: bool, unit_check: bool = Tru
                 raise UsageError(f"{path}: record file not found")
             if path.is_dir():
                 records += list(load_dataset(path, resample=resample, unit_check=unit_check,
-                                             channels=channels))
+                                             channels=channels, drive=drive))
             else:
                 records.append(load_record(path, resample=resample, unit_check=unit_check,
-                                           channels=channels))
+                                           channels=channels, drive=drive))
         for i, r in enumerate(records):
             for earlier in records[:i]:
                 if same_file(r.source, earlier.source):
@@ -74,6 +75,17 @@ def load_records(paths: Sequence[str], *, resample: bool, unit_check: bool = Tru
         raise UsageError(str(exc)) from None
 
 
+class _CommandParser(argparse.ArgumentParser):
+    """A sub-command's parser: an argument it does not know is its error, answered under its
+    own usage (argparse would leave it to the top-level parser and its usage)."""
+
+    def parse_known_args(self, args=None, namespace=None):
+        namespace, extras = super().parse_known_args(args, namespace)
+        if extras:
+            self.error(f"unrecognized arguments: {' '.join(extras)}")
+        return namespace, extras
+
+
 def build_parser() -> argparse.ArgumentParser:
     """The parser of every command; building it imports no JAX (each command imports what it
     computes with when it runs), so ``--help`` and ``--version`` answer at once."""
@@ -85,7 +97,8 @@ def build_parser() -> argparse.ArgumentParser:
         epilog="--debug (anywhere on the line) shows the traceback of an error.",
     )
     parser.add_argument("--version", action="version", version=f"%(prog)s {__version__}")
-    subparsers = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
+    subparsers = parser.add_subparsers(dest="command", required=True, metavar="COMMAND",
+                                       parser_class=_CommandParser)
     for name in COMMANDS:
         try:
             module = importlib.import_module(f"jaxflex.cli.{name}")

@@ -158,10 +158,11 @@ def refuse_two_link(records) -> None:
 
 def load_rig_records(paths, args: argparse.Namespace, model: Model | None = None):
     """The records of ``paths`` (record options of ``args``; columns named as ``model``'s
-    sensors are theirs); a two-link rig is refused."""
+    sensors are theirs, its drive's input column is read where a file holds several); a
+    two-link rig is refused."""
     channels = () if model is None else model.channels
     records = load_records(paths, resample=args.resample, unit_check=args.unit_check,
-                           channels=channels)
+                           channels=channels, drive=None if model is None else model.drive.name)
     refuse_two_link(records)
     return records
 
@@ -179,4 +180,5 @@ def _speaking_cli(function, *args, **kwargs):
         return function(*args, **kwargs)
     except (KeyError, ValueError) as err:
         message = err.args[0] if isinstance(err, KeyError) and err.args else str(err)
-        raise UsageError(str(message).replace("window=(t0, t1)", "--window T0:T1")) from None
+        raise UsageError(str(message).replace("window=(t0, t1)", "--window T0:T1").replace(
+            "initial_state='estimate'", "--initial-state estimate")) from None

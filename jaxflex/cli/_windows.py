@@ -153,6 +153,7 @@ def resolve_window(
         )
     except ValueError as err:
         message = str(err).replace("window=(t0, t1)", f"--window {_echo(record.name)}=T0:T1")
+        message = message.replace("initial_state='estimate'", "--initial-state estimate")
         raise UsageError(f"--window {_echo(window.text)}: {message}") from None
     return t0, t_end
 

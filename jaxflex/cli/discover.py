@@ -2,9 +2,10 @@
 
 Fits the base model (or starts from ``--initial FIT.json``), then adds one effect at a time
 while a score test finds a significant candidate that a refit confirms, and reports what stays
-unexplained. Prints the step table; ``--json`` writes the machine-readable result
-(``{"steps": [...], "ranking": [...], "unexplained": ...}``), ``--report DIR`` the table, the
-JSON and the figures.
+unexplained. Prints the step table, the explanations and the final model (each parameter with
+its 95 % interval and unit, as ``identify`` prints a fit); ``--json`` writes the
+machine-readable result (``{"steps": [...], "ranking": [...], "unexplained": ...}``),
+``--report DIR`` the table, the JSON and the figures.
 """
 
 from __future__ import annotations
@@ -131,6 +132,7 @@ def run(args: argparse.Namespace) -> int:
     print(report.table(), end="")
     for line in report.explanations():
         print(f"  {line}")
+    print(report.summary(), end="")
     paths = []
     with all_or_nothing():
         if args.json:

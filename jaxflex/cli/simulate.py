@@ -235,15 +235,16 @@ def simulate_logged(args: argparse.Namespace, arm, out, plot) -> int:
     record = logged_record(model, params, time, signal,
                            seed=args.seed if args.add_noise else None, name=args.input,
                            metadata=metadata)
+    from jaxflex.comparison import channel_units
+
+    units = channel_units(model, record.columns)
     with all_or_nothing():
         save_record(record, out, overwrite=args.overwrite, units=logged_units(model))
         if plot:
-            from jaxflex.comparison import channel_units
             from jaxflex.plots._style import save_figure
             from jaxflex.plots.simulate import plot_record
 
-            save_figure(plot_record(record, units=channel_units(model, model.channels)),
-                        plot[0], overwrite=args.overwrite)
+            save_figure(plot_record(record, units=units), plot[0], overwrite=args.overwrite)
     print(f"wrote {out}: {record.n_samples} samples of {', '.join(record.columns[1:])} "
           f"(rig {arm.name!r})")
     for path in plot:

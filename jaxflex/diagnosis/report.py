@@ -91,6 +91,12 @@ class Diagnosis:
     nrmse_per_record: dict[str, np.ndarray]
     alpha: float = 0.01
     residuals: tuple[dict[str, np.ndarray], ...] = field(default=(), repr=False)
+    units: dict[str, str] = field(default_factory=dict)  # a channel's own unit (a sensor's)
+
+    def amount(self, value: float, channel: str, digits: int = 3) -> str:
+        """``value`` in ``channel``'s unit: its own (:attr:`units`), else the output's."""
+        unit = self.units.get(channel) or UNITS.get(channel, "")
+        return f"{value:.{digits}g}" if unit in ("", "1") else f"{value:.{digits}g} {unit}"
 
     @property
     def consistent_with_noise(self) -> bool:
@@ -122,7 +128,7 @@ class Diagnosis:
         for c in bad:
             parts.append(
                 f"{c.channel}: NRMSE {c.nrmse:.3g} % vs noise floor {c.noise_floor_nrmse:.3g} % "
-                f"(RMS {c.rms:.3g} {UNITS.get(c.channel, '')}, {c.rms_ratio:.2g}x noise)"
+                f"(RMS {self.amount(c.rms, c.channel)}, {c.rms_ratio:.2g}x noise)"
             )
         where_f = ", ".join(f"{f:.1f} Hz" for f in freqs[:4])
         where_t = ", ".join(w.condition for w in times)
@@ -154,7 +160,7 @@ class Diagnosis:
                 f"{c.channel}: NRMSE {c.nrmse:.3g} % (noise floor {c.noise_floor_nrmse:.3g} %), "
                 f"{white}: {status}"
             )
-            lines.append(f"  noise level σ = {c.noise.sigma:.4g} {UNITS.get(c.channel, '')} "
+            lines.append(f"  noise level σ = {self.amount(c.noise.sigma, c.channel, 4)} "
                          f"({c.noise.describe()})")
             if ok:
                 continue
@@ -162,7 +168,7 @@ class Diagnosis:
             if xc.significant:
                 lines.append(
                     f"  residual correlates with the torque: peak {xc.peak_value:+.2f} at lag "
-                    f"{1e3 * xc.peak_lag_s:+.0f} ms"
+                    f"{1e3 * xc.peak_lag_s:+.3g} ms"
                 )
             if c.spectrum.peaks_hz:
                 peaks = ", ".join(
@@ -289,6 +295,7 @@ def diagnose(
     max_lag: int | None = None,
     f_max: float = 15.0,
     channels: Sequence[str] = OUTPUT_COLUMNS,
+    units: Mapping[str, str] | None = None,
 ) -> Diagnosis:
     """Run every diagnostic on the residuals of ``predictions`` (one per record) in
     ``channels``, the outputs the records measure (default ``joint_angle`` and
@@ -299,7 +306,8 @@ def diagnose(
     present). ``noise`` gives channels' levels (a :class:`NoiseLevel` or a white σ); the others
     are estimated by :func:`estimate_noise`. ``alpha`` is the level of the whiteness test. The
     FRF comparison uses the first of :data:`~jaxflex.diagnosis.frf.LINK_OUTPUTS` among the
-    channels (none without a link channel).
+    channels (none without a link channel). ``units`` gives channels' own units (a sensor's,
+    e.g. ``{"acc": "counts"}``) for the findings' text.
     """
     records = list(records)
     predictions = list(predictions)
@@ -374,6 +382,7 @@ def diagnose(
         nrmse_per_record=nrmse_per_record,
         alpha=alpha,
         residuals=residuals,
+        units=dict(units or {}),
     )
 
 

@@ -13,6 +13,7 @@ from dataclasses import dataclass
 import jax
 import jax.numpy as jnp
 import numpy as np
+from scipy import stats
 
 from jaxflex.data import Dataset
 from jaxflex.diagnosis import (
@@ -527,7 +528,30 @@ class Engine:
             n_params=int(u.active_mask(active).sum()),
             n_samples=self.n_samples,
             noise=self.noise,
+            intervals=self.intervals(x, active),
         )
+
+    def intervals(self, x: np.ndarray, active: Sequence[int], level: float = 0.95
+                  ) -> dict[str, tuple[float, float]]:
+        """Gauss–Newton ``level`` intervals of the fitted parameters at ``x`` (own names): the
+        residuals are whitened by the stated noise levels, so the covariance is ``(JᵀJ)⁻¹`` of
+        the fit's own system; a parameter the records do not determine gets ``(-inf, inf)``."""
+        u = self.universe
+        cols = np.flatnonzero(u.active_mask(active))
+        pred, jac = self.evaluate(x, np.zeros(len(x), bool), cols)
+        jac = self._system(pred, jac)[1]
+        if not np.all(np.isfinite(jac)):
+            return {}
+        norms = np.linalg.norm(jac, axis=0)
+        scaled = jac / np.where(norms > 0, norms, 1.0)
+        cov = np.linalg.pinv(scaled.T @ scaled, rcond=1e-12, hermitian=True)
+        var = np.diag(cov) / np.where(norms > 0, norms, np.nan) ** 2
+        half = stats.norm.ppf(0.5 + 0.5 * level) * np.sqrt(np.where(var > 0, var, np.inf))
+        half = np.where(np.isfinite(half), half, np.inf)
+        lo, hi = x.copy(), x.copy()
+        lo[cols], hi[cols] = x[cols] - half, x[cols] + half
+        lower, upper = u.params(lo, active), u.params(hi, active)
+        return {n: (lower[n], upper[n]) for n in upper if n not in u.fixed}
 
     # --- score tests --------------------------------------------------------------------------
     def score_tests(self, x: np.ndarray, active: Sequence[int], alpha: float,

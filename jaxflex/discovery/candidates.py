@@ -81,15 +81,19 @@ class Candidate:
         return tuple(self.effects[0].parameters)
 
     def label(self, i: int) -> str:
-        """The setting of profile member ``i`` (e.g. ``"v_s=0.1"``), '' for a single effect."""
+        """The setting of profile member ``i``, '' for a single effect; a setting that is also a
+        fitted parameter is where its fit started (``"v_s started at 0.1"``)."""
         if len(self.effects) == 1:
             return ""
         member = self.effects[i]
+        fitted = {p.name for p in member.parameters}
         parts = []
         for f in dataclasses.fields(member):
             value = getattr(member, f.name)
             varies = len({repr(getattr(e, f.name)) for e in self.effects}) > 1
-            if varies and isinstance(value, (int, float, str)):
+            if varies and f.name in fitted:
+                parts.append(f"{f.name} started at {value:g}")
+            elif varies and isinstance(value, (int, float, str)):
                 parts.append(f"{f.name}={value:g}" if isinstance(value, float) else
                              f"{f.name}={value}")
         return ", ".join(parts)

@@ -133,6 +133,17 @@ def _p(p: float) -> str:
     return f"{p:.2g}"
 
 
+def _ms(seconds: float) -> str:
+    """A time in milliseconds, to three digits (``"0.96 ms"``, ``"58 ms"``)."""
+    return f"{1e3 * seconds:.3g} ms"
+
+
+def percent(share: float) -> str:
+    """A share as a whole percentage, ``"12 %"``; never ``"-0 %"``."""
+    text = f"{100 * share:.0f}"
+    return f"{'0' if text == '-0' else text} %"
+
+
 # --- the statistics -----------------------------------------------------------------------------
 
 
@@ -214,8 +225,13 @@ def collect_evidence(result: ScoreResult, effect: AbstractEffect, diagnosis: Dia
         "lag": _lag_evidence(effect, diagnosis),
         "concentration": _concentration(effect, diagnosis),
     }
+    own = {p.name: p.unit for p in effect.parameters}  # with those fitted from a start (v_s)
+    ev["units"] |= {n: u for n, u in own.items() if n not in ev["units"]}
     if refit is not None:
-        names = result.parameters
+        names = dict.fromkeys([*result.parameters, *own])
+        seconds = {n: refit.params[n] for n, u in own.items() if u == "s" and n in refit.params}
+        if ev["lag"] is not None and seconds:  # the refit's own time, beside the peak lag
+            ev["lag"]["fitted_s"] = seconds
         ev["refit"] = {"lr": refit.lr, "p_value": refit.p_value, "level": refit.level,
                        "delta_bic": refit.delta_bic, "explained": refit.explained,
                        "confirmed": refit.confirmed, "at_null": refit.at_null,
@@ -271,9 +287,12 @@ def _held(ev: Mapping[str, Any]) -> str:
 def _refit_gain(ev: Mapping[str, Any]) -> str:
     refit = ev.get("refit")
     if refit is not None:
+        if refit["lr"] < 0:  # an LR is never negative: the refit ended worse
+            return (f"its refit ({_magnitude(refit['params'], ev['units'])}) ended worse than "
+                    f"the model without it: −2 log L rose by {-refit['lr']:.3g}{_held(ev)}")
         return (f"its refit ({_magnitude(refit['params'], ev['units'])}) lowers −2 log L by "
                 f"LR = {refit['lr']:.3g} (p = {_p(refit['p_value'])}), "
-                f"{100 * refit['explained']:.0f} % of the misfit above the noise{_held(ev)}")
+                f"{percent(refit['explained'])} of the misfit above the noise{_held(ev)}")
     return (f"to first order a refit would lower −2 log L by S = {ev['score']['S']:.3g} "
             f"(one-step estimate {_magnitude(ev['estimate'], ev['units'])})")
 
@@ -284,7 +303,7 @@ def _verdict(status: str, ev: Mapping[str, Any], chosen: str | None,
     score = ev["score"]
     if status == "explains":
         return (f"added and kept: the refit ({_magnitude(refit['params'], ev['units'])}) "
-                f"explains {100 * refit['explained']:.0f} % of the misfit above the noise "
+                f"explains {percent(refit['explained'])} of the misfit above the noise "
                 f"(LR = {refit['lr']:.3g}, p = {_p(refit['p_value'])}){_held(ev)}")
     if status == "withdrawn":
         return (f"added, then withdrawn (it removed less than {100 * min_explained:.0f} % of "
@@ -295,13 +314,15 @@ def _verdict(status: str, ev: Mapping[str, Any], chosen: str | None,
                 f"{_refit_gain(ev)}")
     if status == "not_confirmed":
         why = []
-        if not refit["p_value"] < refit["level"]:
-            why.append(f"LR p = {_p(refit['p_value'])} not below {_p(refit['level'])}")
-        if not refit["delta_bic"] < 0:
-            why.append(f"BIC rises by {refit['delta_bic']:.3g}")
+        if refit["lr"] >= 0:  # else the refit gain says it ended worse
+            if not refit["p_value"] < refit["level"]:
+                why.append(f"LR p = {_p(refit['p_value'])} not below {_p(refit['level'])}")
+            if not refit["delta_bic"] < 0:
+                why.append(f"BIC rises by {refit['delta_bic']:.3g}")
         if refit["at_null"]:
             why.append("its parameters ended on their null-side bound")
-        return f"not added, not confirmed ({'; '.join(why)}): {_refit_gain(ev)}"
+        because = f" ({'; '.join(why)})" if why else ""
+        return f"not added, not confirmed{because}: {_refit_gain(ev)}"
     if status == "not_refitted":
         why = {"ratio": "S below 10 % of the best",
                "full": "more significant candidates filled the refits"}.get(
@@ -326,17 +347,19 @@ def claims(result: ScoreResult, status: str, *, chosen: str | None = None,
             f"{res['resolution_hz']:.2g} Hz)")})
     lag = ev.get("lag")
     if lag and lag["cited"]:
+        fitted = "".join(f"; the refit's {n} is {_ms(v)}, a late response of any size leaves "
+                         f"this sign" for n, v in (lag.get("fitted_s") or {}).items())
         out.append({"rule": "lag", "text": (
             f"{lag['channel']} residual correlates most with the torque "
-            f"{1e3 * lag['lag_s']:.0f} ms before it ({lag['value']:+.2f}, band "
+            f"{_ms(lag['lag_s'])} before it ({lag['value']:+.2f}, band "
             f"±{lag['band']:.2g}), where the model's own {lag['channel']} rate correlates "
             f"{lag['rate_value']:+.2f}: the residual has the opposite sign of the rate, as a "
-            f"late response leaves it")})
+            f"late response leaves it{fitted}")})
     conc = ev.get("concentration")
     if conc and conc["cited"]:
         out.append({"rule": "concentration", "text": (
-            f"{100 * conc['share']:.0f} % of the misfit in '{conc['condition']}' "
-            f"({100 * conc['time_share']:.0f} % of the time)")})
+            f"{percent(conc['share'])} of the misfit in '{conc['condition']}' "
+            f"({percent(conc['time_share'])} of the time)")})
     return out
 
 
@@ -368,6 +391,7 @@ def annotate(steps: Sequence[Any], withdrawn: Sequence[str], min_explained: floa
     out = []
     for i, step in enumerate(steps):
         added = steps[i + 1].added if i + 1 < len(steps) else None
+        added = None if added in withdrawn else added  # a withdrawn effect explains nothing
         ranking = list(step.ranking)
         chosen = (ranking[0].effect if ranking and ranked_by(ranking[0]) == "LR" else None)
         new = []
@@ -421,6 +445,7 @@ __all__ = [
     "collect_evidence",
     "explain",
     "noise_claim",
+    "percent",
     "ranking_key",
     "ranking_line",
 ]

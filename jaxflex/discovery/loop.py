@@ -14,7 +14,7 @@ import numpy as np
 from jaxtyping import ArrayLike
 
 from jaxflex._progress import Progress
-from jaxflex.comparison import DEFAULT_T_END, FRFSettings, compare_record
+from jaxflex.comparison import DEFAULT_T_END, FRFSettings, channel_units, compare_record
 from jaxflex.data import Dataset, Record
 from jaxflex.diagnosis import (
     Diagnosis,
@@ -25,7 +25,7 @@ from jaxflex.diagnosis import (
 from jaxflex.discovery._confirm import confirm, profile_scan
 from jaxflex.discovery._engine import Engine
 from jaxflex.discovery.candidates import Candidate, candidate_set
-from jaxflex.discovery.explain import annotate, collect_evidence, ranking_key
+from jaxflex.discovery.explain import annotate, collect_evidence, percent, ranking_key
 from jaxflex.discovery.operations import full_params
 from jaxflex.discovery.report import Confirmation, DiscoveryFit, DiscoveryReport, Step
 from jaxflex.discovery.scores import ALPHA, ScoreResult
@@ -118,7 +118,8 @@ def _rigid_step(engine: Engine, estimate, records: Dataset, holdout: Dataset | N
                        n_samples=engine.n_samples, noise=engine.noise)
     return Step(added=None, fit=fit, nrmse=nrmse, frf_nrmse=frf, holdout=held,
                 diagnosis=diagnose(records, preds, noise=engine.noise, alpha=alpha,
-                                   channels=channels),
+                                   channels=channels,
+                                   units=channel_units(engine.universe.base, channels)),
                 label="rigid", predictions=preds)
 
 
@@ -320,7 +321,8 @@ def discover(
     bar = Progress(range(max_steps + 1), label="discover", enabled=progress, each_stage=True)
     for _ in bar:
         preds = engine.predictions(x, records)
-        diag = diagnose(records, preds, noise=engine.noise, alpha=alpha, channels=channels)
+        diag = diagnose(records, preds, noise=engine.noise, alpha=alpha, channels=channels,
+                        units=channel_units(model, channels))
         held_preds = None
         if holdout is not None:
             held_preds = held_out.get(x.tobytes()) or engine.predictions(x, holdout)
@@ -381,8 +383,11 @@ def discover(
             p_value=added.get("p"), explained=added.get("explained"), predictions=preds,
             holdout_predictions=tuple(held_preds or ()),
         ))
-        found = "none confirmed" if best is None else f"confirmed {confirmations[best].effect}"
-        bar.set_message(f"{len(ranking)} candidates tested; {found}")
+        found = ("no refit confirmed one" if best is None else
+                 f"the refit confirmed {confirmations[best].effect}: added (withdrawn at the "
+                 "end if it leaves most of the misfit)")
+        bar.set_message(f"after '{steps[-1].structure}': {len(ranking)} candidates tested; "
+                        f"{found}")
         if best is None:
             break
         conf, (slot, x, cost) = confirmations[best], refits[best]
@@ -390,8 +395,10 @@ def discover(
         added = {"name": conf.effect, "lr": conf.lr, "p": conf.p_value,
                  "explained": conf.explained}
 
-    steps, withdrawn = _withdraw(steps)
-    steps = annotate(steps, withdrawn, MIN_EXPLAINED)
+    steps, cut = _withdraw(steps)
+    withdrawn = [s.added for s in cut if s.added]
+    every = annotate([*steps, *cut], withdrawn, MIN_EXPLAINED)
+    steps, cut = every[:len(steps)], every[len(steps):]
     unexplained = steps[-1].diagnosis.unexplained()
     if unexplained is not None:
         if steps[-1].ranking or withdrawn:
@@ -401,9 +408,7 @@ def discover(
         else:
             note = "every candidate is in the model already"
         if withdrawn:
-            held = " and did not lower the held-out error" if holdout is not None else ""
-            note += (f" ({', '.join(withdrawn)} reduced the misfit but left most of it{held}; "
-                     "withdrawn)")
+            note += f" ({withdrawn_note(cut, holdout is not None)})"
         unexplained["message"] = f"{unexplained['message']}; {note}"
     return DiscoveryReport(
         steps=tuple(steps),
@@ -430,6 +435,7 @@ def discover(
                   "min_explained": MIN_EXPLAINED},
         wall_time=time.perf_counter() - t0,
         noise_floor={c: d.noise_floor_nrmse for c, d in steps[-1].diagnosis.channels.items()},
+        withdrawn_steps=tuple(cut),
     )
 
 
@@ -472,10 +478,11 @@ def _holdout_error(holdout: Dataset, preds: Sequence[Outputs], channels: Sequenc
                           for o in channels]))
 
 
-def _withdraw(steps: list[Step]) -> tuple[list[Step], list[str]]:
+def _withdraw(steps: list[Step]) -> tuple[list[Step], list[Step]]:
     """Steps without effects that leave structure behind yet removed less than
     :data:`MIN_EXPLAINED` of the misfit and did not lower the held-out error (no held-out
-    records: did not): the run is cut before the first such effect.
+    records: did not): the run is cut before the first such effect; returns the steps kept and
+    the steps cut.
 
     A real rig always leaves some structure the candidates cannot explain; an effect that
     explains part of it is kept when records it was not fitted to confirm it."""
@@ -484,8 +491,19 @@ def _withdraw(steps: list[Step]) -> tuple[list[Step], list[str]]:
     for i, step in enumerate(steps):
         if (step.added is not None and step.explained < MIN_EXPLAINED
                 and not _predicts_better(steps[i - 1], step)):
-            return steps[:i], [s.added for s in steps[i:] if s.added]
+            return steps[:i], steps[i:]
     return steps, []
+
+
+def withdrawn_note(cut: Sequence[Step], held_out: bool) -> str:
+    """What the withdrawn effects of the steps ``cut`` did, from their own refits: the share
+    of the misfit above the noise each removed (a negative one: it added misfit)."""
+    held = " and did not lower the held-out error" if held_out else ""
+    removed = ", ".join(
+        f"{s.added} removed {percent(s.explained)}" if s.explained >= 0 else
+        f"{s.added} added {percent(-s.explained)}" for s in cut if s.added)
+    return (f"{removed} of the misfit above the noise, less than {percent(MIN_EXPLAINED)}"
+            f"{held}; withdrawn")
 
 
 def _predicts_better(before: Step, after: Step) -> bool:

@@ -12,7 +12,6 @@ from jaxflex.diagnosis import (
     Diagnosis,
     NoiseLevel,
 )
-from jaxflex.diagnosis.noise import UNITS
 from jaxflex.discovery.explain import RULES, ranking_line
 from jaxflex.discovery.scores import ScoreResult
 from jaxflex.model import Model
@@ -37,6 +36,7 @@ class DiscoveryFit:
     n_params: int
     n_samples: int
     noise: dict[str, NoiseLevel]
+    intervals: dict[str, tuple[float, float]] = field(default_factory=dict)  # 95 %, fitted ones
 
     @property
     def effects(self) -> tuple[str, ...]:
@@ -110,6 +110,7 @@ class Step:
             "structure": self.structure,
             "effects": list(self.effects),
             "params": dict(self.fit.params),
+            "intervals": {n: list(v) for n, v in self.fit.intervals.items()},
             "nrmse": dict(self.nrmse),
             "frf_nrmse": self.frf_nrmse,
             "holdout": self.holdout,
@@ -136,6 +137,7 @@ class DiscoveryReport:
     settings: dict[str, Any]
     wall_time: float
     noise_floor: dict[str, float]
+    withdrawn_steps: tuple[Step, ...] = ()  # the steps cut when their effects were withdrawn
 
     @property
     def final(self) -> Step:
@@ -192,9 +194,10 @@ class DiscoveryReport:
         floor = ", ".join(f"{k} {v:.3g} %" for k, v in self.noise_floor.items())
         lines.append(f"noise floor (NRMSE the measurement noise alone gives): {floor}")
         for channel, level in self.noise.items():
-            lines.append(f"noise level {channel}: σ = {level.sigma:.4g} {UNITS.get(channel, '')} "
+            lines.append(f"noise level {channel}: σ = "
+                         f"{self.final.diagnosis.amount(level.sigma, channel, 4)} "
                          f"({level.describe()})")
-        for s in self.steps:
+        for s in (*self.steps, *self.withdrawn_steps):
             if s.ranking:
                 lines.append(ranking_line(s.structure, s.ranking))
         if self.withdrawn:
@@ -206,6 +209,23 @@ class DiscoveryReport:
             lines.append(f"UNEXPLAINED: {self.unexplained['message']}")
         else:
             lines.append("residuals are consistent with the measurement noise")
+        return "\n".join(lines) + "\n"
+
+    def summary(self) -> str:
+        """The final model as ``jaxflex identify`` prints a fit: each parameter's value, its
+        95 % interval (Gauss–Newton, from the discovery likelihood at the stated noise levels)
+        and unit."""
+        from jaxflex.fit import parameter_table, parameter_units
+
+        final = self.final.fit
+        if final.model is None:
+            return ""
+        lines = [f"final model: {self.final.structure} (−2 log L = {final.cost:.6g}, "
+                 f"{final.n_params} fitted parameters)",
+                 *parameter_table(final.params, final.intervals, parameter_units(final.model),
+                                  level=0.95),
+                 "intervals: Gauss-Newton at the stated noise levels; they assume the final "
+                 "model is right and the noise as stated"]
         return "\n".join(lines) + "\n"
 
     def explanations(self) -> list[str]:
@@ -222,7 +242,9 @@ class DiscoveryReport:
         """The JSON contract of ``jaxflex discover --json``."""
         return to_jsonable({
             "steps": [s.to_dict() for s in self.steps],
-            "ranking": [[r.to_dict() for r in s.ranking] for s in self.steps if s.ranking],
+            "ranking": [[r.to_dict() | {"after": s.structure} for r in s.ranking]
+                        for s in (*self.steps, *self.withdrawn_steps) if s.ranking],
+            "withdrawn_steps": [s.to_dict() for s in self.withdrawn_steps],
             "unexplained": self.unexplained,
             "withdrawn": list(self.withdrawn),
             "claim_rules": {r.name: r.when for r in RULES.values()},

@@ -20,7 +20,7 @@ import numpy as np
 from matplotlib.figure import Figure
 
 from jaxflex._io import check_writable, safe_stem, write_json, write_text
-from jaxflex.comparison import FRF, Comparison
+from jaxflex.comparison import FRF, Comparison, merged_peaks
 from jaxflex.data import OUTPUT_COLUMNS, Record
 from jaxflex.plots._style import MARK, MEASURED, MODEL, RESIDUAL, new_figure, save_figure
 from jaxflex.simulation import Outputs
@@ -121,8 +121,9 @@ def plot_frf(
     ``source`` is a comparison (``which``: one record, several, or ``None`` for all) or a single
     :class:`~jaxflex.comparison.FRF`. Measured bins used by the FRF NRMSE are dots, bins left out
     (low input power or coherence) faint crosses; the model is a line over the compared bins.
-    The model's resonances (``resonances_hz``, default: the comparison's) are dashed vertical
-    lines labelled in Hz, the measured FRF's prominent peaks triangles (one legend entry for
+    The model's resonances (``resonances_hz``, default: the peaks of the shown records' model
+    FRFs, the model as fitted with its hub's real boundary) are dashed vertical lines labelled
+    in Hz, the measured FRF's prominent peaks triangles (one legend entry for
     all records). The frequency axis runs to ``f_max`` (default: the comparison's band, 15 Hz).
     """
     path = ("torque", "tip_acceleration", {"torque": "N m", "tip_acceleration": "m s⁻²"})
@@ -135,7 +136,8 @@ def plot_frf(
         )
         rows = [source[k] for k in keys]
         curves = [(r.name, r.frf, r.measured_peaks_hz) for r in rows]
-        resonances = source.resonances_hz if resonances_hz is None else resonances_hz
+        resonances = (merged_peaks(p for r in rows for p in r.model_peaks_hz)
+                      if resonances_hz is None else resonances_hz)
         f_max = source.frf_settings.f_max if f_max is None else f_max
     elif isinstance(source, FRF):
         curves = [("", source, ())]
@@ -199,7 +201,7 @@ def plot_frf(
                 color=MARK,
                 ls="--",
                 lw=1.0,
-                label="model mode (free hub)" if ax is ax_mag and k == 0 else None,
+                label="model resonance (as fitted)" if ax is ax_mag and k == 0 else None,
             )
         ax_mag.text(
             f_res,
@@ -217,7 +219,8 @@ def plot_frf(
     if levels.size:
         ax_mag.set_ylim(levels.min() - 10.0, levels.max() + 10.0)
     source_name, link, units = path
-    input_unit = {"torque": "N m", "current": "A", "voltage": "V"}.get(source_name, "unit")
+    input_unit = units.get(source_name) or {"torque": "N m", "current": "A", "voltage": "V"}.get(
+        source_name, "unit")
     ax_mag.set_ylabel(f"|H| (dB re 1 {units.get(link) or 'unit'} / {input_unit})")
     ax_mag.legend(
         loc="lower left", bbox_to_anchor=(0.0, 1.0), fontsize="small", frameon=False, ncols=3

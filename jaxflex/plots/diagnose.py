@@ -70,7 +70,7 @@ def plot_cross_correlation(
     ax.axhspan(-xc.band, xc.band, color="0.85", zorder=0, label="95 % band")
     ax.axvline(0.0, color="0.4", lw=0.8)
     ax.plot([1e3 * xc.peak_lag_s], [xc.peak_value], "o", color=MARK,
-            label=f"peak at {1e3 * xc.peak_lag_s:+.0f} ms")
+            label=f"peak at {1e3 * xc.peak_lag_s:+.3g} ms")
     ax.set_xlabel("lag (ms): residual after torque →")
     ax.set_ylabel("cross-correlation")
     ax.set_title(title or "residual vs torque", fontsize="medium")

@@ -97,7 +97,7 @@ def save_discovery_report(
     targets = report_paths(names, directory, fmt)
     for path in targets:
         check_writable(path, overwrite)
-    text = report.table() + "\n" + "\n".join(report.explanations()) + "\n"
+    text = report.table() + "\n" + "\n".join(report.explanations()) + "\n" + report.summary()
     write_text(targets[0], text, overwrite=overwrite)
     write_json(targets[1], report.to_dict(), overwrite=overwrite)
     save_figure(plot_discovery(report), targets[2], overwrite=overwrite)

@@ -29,7 +29,8 @@ def plot_record(
     units = dict(units or {})
     first = records[0]
     if channels is None:
-        channels = list(units) or [c for c in OUTPUT_COLUMNS if c in first.columns]
+        channels = [c for c in units if c not in ("time", first.input_name)] or [
+            c for c in OUTPUT_COLUMNS if c in first.columns]
     fig, axes = new_figure(1 + len(channels), 1, figsize=figsize, dpi=dpi, sharex=True)
     ax_input, *ax_channels = axes[:, 0]
     for record in records:
@@ -38,7 +39,8 @@ def plot_record(
             y = record.channel(c)
             ax.plot(record.time, np.degrees(y) if _in_degrees(c, units) else y,
                     linewidth=0.8, label=record.name)
-    ax_input.set_ylabel(f"{first.input_name} [{first.units[first.input_name] or 'unit'}]")
+    input_unit = units.get(first.input_name) or first.units[first.input_name] or "unit"
+    ax_input.set_ylabel(f"{first.input_name} [{input_unit}]")
     for ax, c in zip(ax_channels, channels, strict=True):
         unit = "deg" if _in_degrees(c, units) else units.get(c) or first.units.get(c) or "-"
         ax.set_ylabel(f"{c.replace('_', ' ')} [{unit}]")
