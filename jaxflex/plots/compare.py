@@ -2,8 +2,8 @@
 
 * :func:`plot_time` — measured and simulated outputs of one record, each with its residual
   underneath on a shared time axis;
-* :func:`plot_frf` — FRF magnitude (dB) and phase, measured against model, with the model's
-  resonances marked and labelled in Hz and the bins left out of the FRF NRMSE shown apart;
+* :func:`plot_frf` — FRF magnitude (dB) and unwrapped phase, measured against model, with the
+  model's resonances marked and labelled in Hz and the bins left out of the FRF NRMSE shown apart;
 * :func:`save_report` — the table, ``comparison.json`` and every figure into one directory.
 
 Everything drawn is read from a :class:`~jaxflex.comparison.Comparison` (or a record and its
@@ -116,7 +116,8 @@ def plot_frf(
     title: str | None = None,
 ) -> Figure:
     """FRF input → link channel (torque → tip acceleration on the reference testbed):
-    magnitude (dB) and phase, measured vs model.
+    magnitude (dB re one output unit per drive input unit) and phase, measured vs model; the
+    phase unwrapped along the model, each measured bin drawn within ±180° of it.
 
     ``source`` is a comparison (``which``: one record, several, or ``None`` for all) or a single
     :class:`~jaxflex.comparison.FRF`. Measured bins used by the FRF NRMSE are dots, bins left out
@@ -174,8 +175,7 @@ def plot_frf(
             label="left out (low input power)" if i == 0 and left_out.any() else None,
         )
         model_phase, measured_phase = _unwrapped_phase(frf, show)
-        ax_phase.plot(f[show], np.where(frf.compared, model_phase, np.nan)[show],
-                      color=colour_model, lw=1.2)
+        ax_phase.plot(f[show], model_phase[show], color=colour_model, lw=1.2)
         ax_phase.plot(f[used], measured_phase[used], "o", color=colour_meas, ms=3)
         shown_phase += [model_phase[used], measured_phase[used]]
         visible_peaks = [p for p in peaks if p <= f_max]
@@ -281,12 +281,13 @@ def report_paths(
 
 
 def _unwrapped_phase(frf: FRF, show: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Model and measured phase (deg) over the bins ``show``: the model's unwrapped along the
-    frequency axis, starting within ±180°; each measured bin within ±180° of the model's
-    (the same angle, the turn that reads continuously). NaN outside ``show``."""
+    """Model and measured phase (deg) over the compared bins of ``show``: the model's unwrapped
+    along the frequency axis (across left-out bins, whose phase means nothing, by the smallest
+    step), starting within ±180°; each measured bin within ±180° of the model's (the same
+    angle, the turn that reads continuously). NaN elsewhere."""
     model = np.full(frf.freqs.shape, np.nan)
     measured = np.full(frf.freqs.shape, np.nan)
-    bins = np.flatnonzero(show & np.isfinite(frf.model) & (frf.model != 0))
+    bins = np.flatnonzero(show & frf.compared & np.isfinite(frf.model) & (frf.model != 0))
     if bins.size:
         model[bins] = np.degrees(np.unwrap(np.angle(frf.model[bins])))
         measured[bins] = model[bins] + np.degrees(np.angle(frf.measured[bins] / frf.model[bins]))
