@@ -181,6 +181,7 @@ class Comparison:
     units: dict[str, str] = field(default_factory=dict)
     link: str = "tip_acceleration"  # the FRF's output
     input_name: str = "torque"
+    input_unit: str = "N m"  # the drive's input unit (V, A, counts)
 
     def __len__(self) -> int:
         return len(self.rows)
@@ -362,6 +363,9 @@ def compare(
             window = _time_window(record, t_end)
             floor = {c: _percent_of_rms(s, record.channel(c)[window])
                      for c, s in sigma.items() if c in own}
+            if link in sigma and link in own and settings.single_segment \
+                    and row.frf.compared.any():
+                floor["frf"] = _frf_noise_floor(record, row.frf, settings, sigma[link])
             row = dataclasses.replace(row, noise_floor=row.noise_floor | floor)
         rows.append(row)
         simulated.append(out)
@@ -387,6 +391,7 @@ def compare(
         units=channel_units(model, (*channels, dataset[0].input_name)),
         link=link,
         input_name=dataset[0].input_name,
+        input_unit=model.drive.unit,
     )
 
 
@@ -587,7 +592,7 @@ def _input_power(torque: np.ndarray, window: str | None) -> np.ndarray:
 
 
 def _frf_noise_floor(record: Record, frf: FRF, settings: FRFSettings, accel_sigma: float) -> float:
-    """FRF NRMSE (%) that white accelerometer noise alone gives on the compared bins.
+    """FRF NRMSE (%) that white noise of the link channel (σ) alone gives on the compared bins.
 
     Noise of variance ``σ²`` adds ``N_k/X_k`` to each bin, with ``E|N_k|² = σ² Σ w²``; to first
     order it changes ``|H|`` by the component along ``H``, of variance ``σ² Σ w² / (2|X_k|²)``.
@@ -660,32 +665,29 @@ def _percent_of_rms(noise_rms: float, measured: np.ndarray) -> float:
 
 
 def _format_table(c: Comparison) -> str:
-    show_floor = any(r.noise_floor for r in c.rows)
-    header = ["record", "role"]
-    short = {o: _SHORT.get(o, o) for o in c.channels}
-    header += [f"NRMSE {short[o]} %" for o in c.channels]
-    header += ["FRF NRMSE %", "FRF raw %", "bins"]
-    header += [f"rel.err {short[o]}" for o in c.channels]
-    if show_floor:
-        header += [f"floor {short[o]} %" for o in c.channels] + ["floor FRF %"]
+    """Two narrow tables: the time domain (a row per record and channel), the FRF (a row per
+    record); a floor column only where some row has a floor to show."""
+    short = {o: _SHORT.get(o, o.replace("_", " ")) for o in c.channels}
+    time_floor = any(o in r.noise_floor for r in c.rows for o in c.channels)
+    header = ["record", "role", "channel", "NRMSE %", "rel.err"] + (["floor %"] * time_floor)
     lines = []
     for r in c.rows:
-        cells = [r.name, r.role]
-        cells += [_channel_cell(r, o, r.nrmse, _number) for o in c.channels]
-        cells += [_number(r.frf_nrmse), _number(r.frf_nrmse_raw)]
-        cells.append(f"{r.frf_bins[0]}/{r.frf_bins[1]}")
-        cells += [_channel_cell(r, o, r.relative_error, _scientific) for o in c.channels]
-        if show_floor:
-            keys = (*c.channels, "frf")
-            cells += [_number(r.noise_floor[k]) if k in r.noise_floor else "-" for k in keys]
-        lines.append(cells)
-    widths = [max(len(h), *(len(row[j]) for row in lines)) for j, h in enumerate(header)]
-
-    def fmt(cells: Sequence[str]) -> str:
-        return "  ".join(
-            cell.ljust(w) if j < 2 else cell.rjust(w)
-            for j, (cell, w) in enumerate(zip(cells, widths, strict=True))
-        ).rstrip()
+        for o in c.channels:
+            cells = [r.name, r.role, short[o], _channel_cell(r, o, r.nrmse, _number),
+                     _channel_cell(r, o, r.relative_error, _scientific)]
+            if time_floor:
+                cells.append(_number(r.noise_floor[o]) if o in r.noise_floor else "-")
+            lines.append(cells)
+    frf_floor = any("frf" in r.noise_floor for r in c.rows)
+    frf_header = ["record", "role", "FRF NRMSE %", "FRF raw %", "bins"] + (
+        ["floor FRF %"] * frf_floor)
+    frf_lines = []
+    for r in c.rows:
+        cells = [r.name, r.role, _number(r.frf_nrmse), _number(r.frf_nrmse_raw),
+                 f"{r.frf_bins[0]}/{r.frf_bins[1]}"]
+        if frf_floor:
+            cells.append(_number(r.noise_floor["frf"]) if "frf" in r.noise_floor else "-")
+        frf_lines.append(cells)
 
     window = "the whole record" if c.t_end is None else f"0 <= t <= {c.t_end:g} s"
     notes = [
@@ -694,7 +696,7 @@ def _format_table(c: Comparison) -> str:
         f"{c.frf_settings.describe()} "
         "('bins': compared/in band); FRF raw = every bin of the band.",
     ]
-    if show_floor:
+    if time_floor or frf_floor:
         noise = ", ".join(f"{k} {v:g}" for k, v in c.noise.items())
         notes.append(f"floor = the NRMSE the sensor noise alone gives ({noise}).")
     notes += _channel_notes(c)
@@ -705,9 +707,26 @@ def _format_table(c: Comparison) -> str:
         peaks = ", ".join(f"{f:.2f}" for f in c.model_resonances_hz)
         fitted = f"Model resonances as fitted (its FRF's peaks): {peaks} Hz; " if peaks else ""
         notes.append(f"{fitted}free-hub modes: {', '.join(shown)} Hz.")
-    rule = "-" * len(fmt(header))
     notes = [textwrap.fill(n, 100, subsequent_indent="  ") for n in notes]
-    return "\n".join([fmt(header), rule, *map(fmt, lines), rule, *notes]) + "\n"
+    tables = _aligned(header, lines, text_columns=3) + [""] + _aligned(
+        frf_header, frf_lines, text_columns=2)
+    return "\n".join([*tables, *notes]) + "\n"
+
+
+def _aligned(header: Sequence[str], rows: Sequence[Sequence[str]],
+             text_columns: int) -> list[str]:
+    """``header``, a rule, ``rows`` and a rule as lines of aligned columns: the first
+    ``text_columns`` left-aligned, numbers right-aligned."""
+    widths = [max(len(h), *(len(row[j]) for row in rows)) for j, h in enumerate(header)]
+
+    def fmt(cells: Sequence[str]) -> str:
+        return "  ".join(
+            cell.ljust(w) if j < text_columns else cell.rjust(w)
+            for j, (cell, w) in enumerate(zip(cells, widths, strict=True))
+        ).rstrip()
+
+    rule = "-" * len(fmt(header))
+    return [fmt(header), rule, *map(fmt, rows), rule]
 
 
 def _channel_cell(row: RecordComparison, channel: str, values: Mapping[str, float],

@@ -69,7 +69,8 @@ def test_prints_the_table_and_writes_the_report(files, tmp_path, capsys):
         if ln.split() and ln.split()[0] in ("triangular", "pulse", "half_sine")
     }
     assert rows == {"triangular": "fit", "pulse": "held-out", "half_sine": "held-out"}
-    assert "NRMSE angle %" in out and "floor tip acc %" in out
+    assert ["channel", "NRMSE", "%", "rel.err", "floor", "%"] == out.split("\n")[0].split()[2:]
+    assert "floor FRF %" in out
     assert f"wrote 6 files to {report}" in out
     names = sorted(p.name for p in report.iterdir())
     assert names == sorted(
@@ -209,8 +210,9 @@ def test_angle_in_degrees_is_flagged(files, tmp_path, capsys):
     assert "pass --no-unit-check to skip this check" in err
     with pytest.warns(RecordWarning, match="'joint_angle'.*degrees"):
         assert validate(path, "--fit", files["fit"], "--no-unit-check") == 0
-    (row,) = [ln.split() for ln in capsys.readouterr().out.splitlines() if ln.startswith("deg ")]
-    assert float(row[2]) > 90  # NRMSE angle %: the model, in radians, misses by a factor 57
+    (row,) = [ln.split() for ln in capsys.readouterr().out.splitlines()
+              if ln.startswith("deg ") and ln.split()[2] == "angle"]
+    assert float(row[3]) > 90  # NRMSE %: the model, in radians, misses by a factor 57
 
 
 def test_missing_record_file(files, tmp_path, capsys):

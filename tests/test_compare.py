@@ -167,21 +167,35 @@ def test_noise_floor_has_the_known_value():
         noise_floor(rec, accel_sigma=-1.0)
 
 
-def test_table_has_one_row_per_record_and_says_what_it_compares(right):
+def test_table_has_a_row_per_record_and_channel_and_says_what_it_compares(right):
     text = right.table()
     lines = text.splitlines()
-    assert "NRMSE angle %" in lines[0] and "NRMSE tip acc %" in lines[0]
-    assert "FRF NRMSE %" in lines[0] and "rel.err angle" in lines[0] and "floor FRF %" in lines[0]
+    assert lines[0].split() == ["record", "role", "channel", "NRMSE", "%", "rel.err", "floor",
+                                "%"]
+    frf_header = next(ln for ln in lines if ln.startswith("record") and "FRF NRMSE %" in ln)
+    assert frf_header.split()[-3:] == ["floor", "FRF", "%"]
+    assert max(len(ln) for ln in lines) <= 100
     for row in right.rows:
-        matching = [ln for ln in lines if ln.split() and ln.split()[0] == row.name]
-        assert len(matching) == 1
-        cells = matching[0].split()
-        assert cells[1] == row.role
-        assert float(cells[2]) == pytest.approx(row.nrmse["joint_angle"], rel=5e-3)
-        assert float(cells[3]) == pytest.approx(row.nrmse["tip_acceleration"], rel=5e-3)
+        matching = [ln.split() for ln in lines if ln.split() and ln.split()[0] == row.name]
+        assert len(matching) == 3  # angle, tip acc, then the FRF row
+        assert [cells[1] for cells in matching] == [row.role] * 3
+        angle, tip, frf = matching
+        assert angle[2] == "angle" and tip[2:4] == ["tip", "acc"]
+        assert float(angle[3]) == pytest.approx(row.nrmse["joint_angle"], rel=5e-3)
+        assert float(tip[4]) == pytest.approx(row.nrmse["tip_acceleration"], rel=5e-3)
+        assert float(frf[2]) == pytest.approx(row.frf_nrmse, rel=5e-3)
+        assert float(frf[-1]) == pytest.approx(row.noise_floor["frf"], rel=5e-3)
     assert "input power within 30 dB" in text  # the FRF masking is stated
     assert f"{right.resonances_hz[0]:.2f} Hz" in text
     assert str(right) == text
+
+
+def test_a_table_without_noise_floors_has_no_floor_columns(right):
+    import dataclasses
+
+    bare = dataclasses.replace(right, rows=tuple(dataclasses.replace(r, noise_floor={})
+                                                 for r in right.rows), noise={})
+    assert "floor" not in bare.table()
 
 
 def test_to_dict_is_strict_json(right, records):

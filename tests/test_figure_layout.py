@@ -137,7 +137,7 @@ def test_demo_discovery_figures():
     base = plot_diagnosis(diagnose(records, before), units=units)
     assert_readable(base, "diagnosis_base")
     assert_readable(plot_diagnosis(diagnose(records, after), units=units), "diagnosis_final")
-    spectra = [ax for ax in base.axes if ax.get_xlabel() == "frequency (Hz)"]
+    spectra = [ax for ax in base.axes if ax.get_xlabel().startswith("frequency (Hz)")]
     assert [ax.get_ylabel() for ax in spectra] == ["PSD (rad²/Hz)", "PSD ((m/s^2)²/Hz)"]
     assert not any("-0 " in t.get_text() for t in base.axes[-1].get_yticklabels())
     assert_readable(
@@ -191,6 +191,191 @@ def test_fit_figure():
     tiny["alpha"] = (0.9999 * params["alpha"], 1.0001 * params["alpha"])
     assert_readable(plot_fit(dataclasses.replace(fit, intervals=tiny, robust_intervals=tiny,
                                                  unidentifiable=()), params), "clean fit")
+
+
+# ------------------------------------------------------------------------------ an invented rig
+
+INVENTED_RIG = """\
+name = "strip"
+description = "0.6 m aluminium strip, voltage amplifier, gauge at 0.05 m, accelerometer at 0.4 m"
+
+[link]
+length = 0.6
+width = 0.03
+thickness = 0.002
+density = 2700.0
+
+[simulation]
+n_elements = 4
+
+[sampling]
+dt = 0.002
+duration = 1.2
+
+[parameters]
+E = { reference = 7.0e10, lower = 5.0e10, upper = 9.0e10 }
+J_h = { reference = 0.002, lower = 5e-4, upper = 5e-3 }
+b_v = { reference = 0.005, lower = 1e-4, upper = 0.05 }
+tau_c = { reference = 0.01, lower = 1e-3, upper = 0.05 }
+alpha = { reference = 0.5, fixed = true }
+beta = { reference = 1e-4, fixed = true }
+
+[drive]
+type = "voltage"
+resistance = 2.6
+torque_constant = 7.68e-3
+back_emf_constant = 7.68e-3
+gear_ratio = 70.0
+gearbox_efficiency = 0.90
+motor_efficiency = 0.69
+
+[[sensors]]
+type = "encoder"
+channel = "angle"
+counts_per_revolution = 2048
+
+[[sensors]]
+type = "strain_gauge"
+channel = "strain"
+x = 0.05
+noise = 2e-6
+
+[[sensors]]
+type = "accelerometer"
+channel = "acc"
+x = 0.4
+noise = 0.05
+"""
+
+
+@pytest.fixture(scope="module")
+def invented(tmp_path_factory):
+    """Two logged records of the invented rig (voltage drive, a gauge and an accelerometer
+    part-way along the link) compared with the rig at a hub inertia 30 % off."""
+    from jaxflex.arm import load_arm
+    from jaxflex.measured import logged_record
+    from jaxflex.signals import reference_input
+
+    path = tmp_path_factory.mktemp("rig") / "strip.toml"
+    path.write_text(INVENTED_RIG)
+    rig = load_arm(path)
+    truth = {k: float(v) for k, v in rig.space.reference().items()}
+    records = []
+    for seed, (name, volts) in enumerate((("triangular", 3.0), ("pulse", 4.0))):
+        _, u = reference_input(name, volts, 1.2, 0.002)
+        u = np.concatenate([np.zeros(50), u])
+        records.append(logged_record(rig, truth, 0.002 * np.arange(u.size), u, seed=seed,
+                                     name=name))
+    wrong = truth | {"J_h": 1.3 * truth["J_h"]}
+    return rig, compare(records, rig, wrong, fit_names=["triangular"], t_end=None)
+
+
+def _legends_off_the_data(fig) -> list[str]:
+    """Legends that cover some axes' plotting area."""
+    canvas = FigureCanvasAgg(fig)
+    canvas.draw()
+    renderer = canvas.get_renderer()
+    legends = [(f"axes {i} legend", ax.get_legend()) for i, ax in enumerate(fig.axes)]
+    legends += [("figure legend", lg) for lg in fig.legends]
+    out = []
+    for where, legend in legends:
+        if legend is None:
+            continue
+        box = legend.get_window_extent(renderer)
+        for i, ax in enumerate(fig.axes):
+            if box.overlaps(ax.bbox):
+                out.append(f"{where} covers axes {i}")
+    return out
+
+
+def test_invented_rig_validate_figures(invented):
+    from jaxflex.plots.compare import plot_frf, plot_time
+
+    _, comparison = invented
+    for i, name in enumerate(comparison.names):
+        assert_readable(plot_time(comparison, i), f"{name}_time")
+    frf = plot_frf(comparison)
+    assert_readable(frf, "frf")
+    magnitude, phase = frf.axes
+    assert magnitude.get_ylabel() == "|H| (dB re 1/V)"  # strain per volt: the drive's unit
+    for line in phase.get_lines():
+        y = np.asarray(line.get_ydata(), dtype=float)
+        y = y[np.isfinite(y)]
+        if y.size > 1 and line.get_linestyle() == "-":  # the model: unwrapped, no 360° jump
+            assert np.all(np.abs(np.diff(y)) < 180.0), y
+    assert "floor FRF %" in comparison.table()  # the accelerometer's noise gives its floor
+    assert max(len(ln) for ln in comparison.table().splitlines()) <= 100
+
+
+def test_invented_rig_diagnosis_figure(invented):
+    from jaxflex.diagnosis import diagnose
+    from jaxflex.plots.diagnose import plot_diagnosis
+
+    rig, comparison = invented
+    diagnosis = diagnose([comparison.record(i) for i in range(len(comparison))],
+                         [comparison.outputs(i) for i in range(len(comparison))],
+                         channels=comparison.channels)
+    page = plot_diagnosis(diagnosis, units=comparison.units, input_name="voltage",
+                          input_unit=rig.drive.unit)
+    assert_readable(page, "diagnosis")
+    assert not _legends_off_the_data(page)
+    titles = [ax.get_title() for ax in page.axes]
+    assert {"angle vs voltage (V)", "strain vs voltage (V)", "acc vs voltage (V)"} <= set(titles)
+    assert not any("torque" in ax.get_xlabel() for ax in page.axes)
+
+
+def test_invented_rig_discovery_figures(invented):
+    from jaxflex.plots.diagnose import plot_error_falling, plot_overlay
+
+    _, comparison = invented
+    labels = ("base, nothing added",
+              "base + payload + motor lag + joint stiffness + torque offset + sensor gain acc")
+    overlay = plot_overlay(comparison.record(1), comparison.outputs(1), comparison.outputs(1),
+                           labels=labels, outputs=comparison.channels, units=comparison.units,
+                           role="held out")
+    assert_readable(overlay, "pulse_before_after")
+    assert not _legends_off_the_data(overlay)
+    steps = ["base", "base + payload", "base + payload + motor lag + joint stiffness"]
+    falling = plot_error_falling(
+        steps, {"angle": [20.0, 3.0, 2.9], "strain": [30.0, 5.0, 4.9], "acc": [60.0, 9.0, 8.5]},
+        noise_floor={"angle": 2.5, "strain": 4.5, "acc": 8.0}, frf_nrmse=[40.0, 6.0, 5.5],
+        holdout={"angle": [25.0, 4.0, 3.8], "strain": [33.0, 6.0, 5.0],
+                 "acc": [70.0, 10.0, 9.0]})
+    assert_readable(falling, "error_falling")
+    assert not _legends_off_the_data(falling)
+    colours = {line.get_label(): line.get_color() for line in falling.axes[0].get_lines()}
+    nrmse = [colours[f"{c} NRMSE"] for c in ("angle", "strain", "acc")]
+    assert len(set(nrmse)) == 3  # a colour per channel
+
+
+def test_intervals_label_a_far_robust_end_as_it_is_on_even_ticks():
+    """A robust interval reaching +4.4e7 % is labelled so, not by where its bar is cut; the
+    symmetric-log axis ticks the same decades on both sides, evenly."""
+    from jaxflex.identification import Fit, History
+    from jaxflex.plots.identify import plot_intervals
+
+    params = {"E": 7.0e10, "J_h": 0.002, "b_v": 0.005}
+    intervals = {"E": (6.9e10, 7.1e10), "J_h": (0.0019, 0.0021), "b_v": (0.004, 0.006)}
+    robust = intervals | {"b_v": (0.005 * 1e-6, 0.005 * (1 + 4.4e5))}  # -100 % / +4.4e7 %
+    fit = Fit(
+        params=params, names=tuple(params), fixed={}, model=Model(), cost=1e-4,
+        cost_search=1e-3, intervals=intervals, std={}, covariance=np.zeros((0, 0)),
+        correlation=np.zeros((0, 0)), noise={}, poorly_identifiable=("b_v",), warnings=(),
+        history=History(np.ones(2), np.ones(2), {k: np.full(2, v) for k, v in params.items()}),
+        refinement=None, method="de", seed=0, settings={}, timing={}, record_names=("a",),
+        robust_intervals=robust,
+    )
+    fig = plot_intervals(fit)
+    assert_readable(fig, "intervals")
+    ax = fig.axes[0]
+    labels = [t.get_text() for t in ax.get_yticklabels()]
+    assert any("robust −100/+4.4e7 %" in t for t in labels), labels
+    ticks = [t for t in ax.get_xticks() if t != 0]
+    exponents = sorted({round(np.log10(abs(t))) for t in ticks})
+    positive = sorted(round(np.log10(t)) for t in ticks if t > 0)
+    negative = sorted(round(np.log10(-t)) for t in ticks if t < 0)
+    assert negative == positive[:len(negative)]  # the same decades on both sides
+    assert len({b - a for a, b in itertools.pairwise(exponents)}) <= 1  # evenly spaced
 
 
 # ------------------------------------------------------------------------------ a real rig

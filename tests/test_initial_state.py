@@ -181,6 +181,34 @@ def test_parameters_and_state_of_a_record_logged_mid_run_are_recovered(mid_run, 
     assert any(w.startswith("record 'mid' does not start at rest") for w in wrong.warnings)
 
 
+@pytest.mark.slow  # a few minutes on the 2-core machine: a fit with an estimated state
+def test_identify_plots_each_record_from_the_state_the_fit_estimated(mid_run, tmp_path,
+                                                                     monkeypatch):
+    """``identify --initial-state estimate --plot`` draws the record from its estimated start:
+    the figure's NRMSE is the one ``validate`` gives for the same fit, not the fit from rest."""
+    import jaxflex.plots.compare as figures
+
+    torque, outputs, _ = mid_run
+    path = save_record(_record("mid", outputs, torque, seed=1), tmp_path / "mid.csv")
+    drawn = []
+    plot_time = figures.plot_time
+    monkeypatch.setattr(figures, "plot_time", lambda c, i, **kw: (
+        drawn.append(dict(c[i].nrmse)), plot_time(c, i, **kw))[1])
+    fit = tmp_path / "fit.json"
+    assert main(["identify", str(path), "--initial-state", "estimate", "--initial-modes", "2",
+                 "--generations", "2", "--population", "8", "--no-refine", "--out", str(fit),
+                 "--plot", str(tmp_path / "fig.png"), "--quiet"]) == 0
+    assert (tmp_path / "fig_mid.png").stat().st_size > 10_000
+    assert main(["validate", str(path), "--fit", str(fit), "--t-end", "100", "--json",
+                 str(tmp_path / "scores.json"), "--quiet"]) == 0
+    scores = json.loads((tmp_path / "scores.json").read_text())["records"][0]["nrmse"]
+    (plotted,) = drawn
+    assert plotted == pytest.approx(scores, rel=1e-9), (plotted, scores)
+    saved = Fit.from_json(fit)
+    from_rest = compare([load_record(path)], MODEL, saved.params, t_end=None).rows[0].nrmse
+    assert from_rest["joint_angle"] > 2 * plotted["joint_angle"], (from_rest, plotted)
+
+
 STEADY = TRUTH | {"alpha": 3.0, "beta": 1.5e-4}  # damped enough to reach steady state in 3 s
 STEADY_CUT = 3100  # in the thirteenth period, where the joint slides
 

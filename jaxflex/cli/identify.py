@@ -128,8 +128,11 @@ def run(args: argparse.Namespace) -> int:
             from jaxflex.plots.identify import plot_fit
 
             save_figure(plot_fit(fit), plot[0], overwrite=args.overwrite)
+            # each record from the state the fit used: rest, or its estimated coordinates
             comparison = compare(ready, fit.model, fit.params, fit_names=fit.record_names,
-                                 t_end=None, channels=fit.settings["channels"])
+                                 t_end=None, channels=fit.settings["channels"],
+                                 initial_states={n: list(z.values())
+                                                 for n, z in fit.initial_states.items()})
             for i, path in enumerate(plot[1:]):
                 save_figure(plot_time(comparison, i), path, overwrite=args.overwrite)
     for path in (out, *plot):

@@ -2,8 +2,8 @@
 
 * :func:`plot_time` — measured and simulated outputs of one record, each with its residual
   underneath on a shared time axis;
-* :func:`plot_frf` — FRF magnitude (dB) and phase, measured against model, with the model's
-  resonances marked and labelled in Hz and the bins left out of the FRF NRMSE shown apart;
+* :func:`plot_frf` — FRF magnitude (dB) and unwrapped phase, measured against model, with the
+  model's resonances marked and labelled in Hz and the bins left out of the FRF NRMSE shown apart;
 * :func:`save_report` — the table, ``comparison.json`` and every figure into one directory.
 
 Everything drawn is read from a :class:`~jaxflex.comparison.Comparison` (or a record and its
@@ -18,6 +18,7 @@ from pathlib import Path
 
 import numpy as np
 from matplotlib.figure import Figure
+from matplotlib.ticker import MaxNLocator
 
 from jaxflex._io import check_writable, safe_stem, write_json, write_text
 from jaxflex.comparison import FRF, Comparison, merged_peaks
@@ -116,7 +117,8 @@ def plot_frf(
     title: str | None = None,
 ) -> Figure:
     """FRF input → link channel (torque → tip acceleration on the reference testbed):
-    magnitude (dB) and phase, measured vs model.
+    magnitude (dB re one output unit per drive input unit) and phase, measured vs model; the
+    phase unwrapped along the model, each measured bin drawn within ±180° of it.
 
     ``source`` is a comparison (``which``: one record, several, or ``None`` for all) or a single
     :class:`~jaxflex.comparison.FRF`. Measured bins used by the FRF NRMSE are dots, bins left out
@@ -128,7 +130,8 @@ def plot_frf(
     """
     path = ("torque", "tip_acceleration", {"torque": "N m", "tip_acceleration": "m s⁻²"})
     if isinstance(source, Comparison):
-        path = (source.input_name, source.link, source.units)
+        path = (source.input_name, source.link, source.units | {
+            source.input_name: source.input_unit})
         keys = (
             range(len(source))
             if which is None
@@ -153,7 +156,7 @@ def plot_frf(
     fig, axes = new_figure(2, 1, figsize=figsize, dpi=dpi, sharex=True, height_ratios=[2.0, 1.0])
     ax_mag, ax_phase = axes[0, 0], axes[1, 0]
     single = len(curves) == 1
-    shown_db = []
+    shown_db, shown_phase = [], []
     peak_label = "measured peak"
     for i, (name, frf, peaks) in enumerate(curves):
         if not np.isfinite(frf.measured).any():  # the record does not log the link channel
@@ -176,11 +179,10 @@ def plot_frf(
             alpha=0.35,
             label="left out (low input power)" if i == 0 and left_out.any() else None,
         )
-        phase = np.where(frf.compared, np.degrees(np.angle(frf.model)), np.nan)
-        ax_phase.plot(f[show], phase[show], color=colour_model, lw=1.2)
-        ax_phase.plot(
-            f[used], np.degrees(np.angle(frf.measured[used])), "o", color=colour_meas, ms=3
-        )
+        model_phase, measured_phase = _unwrapped_phase(frf, show)
+        ax_phase.plot(f[show], model_phase[show], color=colour_model, lw=1.2)
+        ax_phase.plot(f[used], measured_phase[used], "o", color=colour_meas, ms=3)
+        shown_phase += [model_phase[used], measured_phase[used]]
         visible_peaks = [p for p in peaks if p <= f_max]
         if visible_peaks:
             ax_mag.plot(
@@ -219,15 +221,20 @@ def plot_frf(
     if levels.size:
         ax_mag.set_ylim(levels.min() - 10.0, levels.max() + 10.0)
     source_name, link, units = path
-    input_unit = units.get(source_name) or {"torque": "N m", "current": "A", "voltage": "V"}.get(
-        source_name, "unit")
-    ax_mag.set_ylabel(f"|H| (dB re 1 {units.get(link) or 'unit'} / {input_unit})")
+    input_unit = units.get(source_name) or {"torque": "N m", "current": "A",
+                                             "voltage": "V"}.get(source_name, "unit")
+    output_unit = units.get(link) or "unit"
+    ratio = f"1/{input_unit}" if output_unit == "1" else f"1 {output_unit} / {input_unit}"
+    ax_mag.set_ylabel(f"|H| (dB re {ratio})")
     ax_mag.legend(
         loc="lower left", bbox_to_anchor=(0.0, 1.0), fontsize="small", frameon=False, ncols=3
     )
     ax_phase.set_ylabel("phase (deg)")
-    ax_phase.set_ylim(-190, 190)
-    ax_phase.set_yticks([-180, -90, 0, 90, 180])
+    phases = np.concatenate(shown_phase) if shown_phase else np.empty(0)
+    phases = phases[np.isfinite(phases)]
+    if phases.size:
+        ax_phase.set_ylim(phases.min() - 20.0, phases.max() + 20.0)
+    ax_phase.yaxis.set_major_locator(MaxNLocator(nbins=5, steps=[1, 1.8, 3.6, 4.5, 9, 10]))
     ax_phase.set_xlabel("frequency (Hz)")
     ax_phase.set_xlim(0.0, f_max)
     label = f" — {curves[0][0]}" if single and curves[0][0] else ""
@@ -276,6 +283,20 @@ def report_paths(
         raise ValueError(f"record names {list(names)} map to clashing file names")
     figures = [directory / f"{s}.{fmt}" for s in stems] + [directory / f"frf.{fmt}"]
     return (directory / "table.txt", directory / "comparison.json", *figures)
+
+
+def _unwrapped_phase(frf: FRF, show: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Model and measured phase (deg) over the compared bins of ``show``: the model's unwrapped
+    along the frequency axis (across left-out bins, whose phase means nothing, by the smallest
+    step), starting within ±180°; each measured bin within ±180° of the model's (the same
+    angle, the turn that reads continuously). NaN elsewhere."""
+    model = np.full(frf.freqs.shape, np.nan)
+    measured = np.full(frf.freqs.shape, np.nan)
+    bins = np.flatnonzero(show & frf.compared & np.isfinite(frf.model) & (frf.model != 0))
+    if bins.size:
+        model[bins] = np.degrees(np.unwrap(np.angle(frf.model[bins])))
+        measured[bins] = model[bins] + np.degrees(np.angle(frf.measured[bins] / frf.model[bins]))
+    return model, measured
 
 
 def _db(h: np.ndarray) -> np.ndarray:

@@ -101,11 +101,11 @@ def save_discovery_report(
     write_text(targets[0], text, overwrite=overwrite)
     write_json(targets[1], report.to_dict(), overwrite=overwrite)
     save_figure(plot_discovery(report), targets[2], overwrite=overwrite)
-    units = channel_units(report.final.fit.model, report.channels)
-    save_figure(plot_diagnosis(report.base.diagnosis, units=units), targets[3],
-                overwrite=overwrite)
-    save_figure(plot_diagnosis(report.final.diagnosis, units=units), targets[4],
-                overwrite=overwrite)
+    model = report.final.fit.model
+    drive = {"units": channel_units(model, report.channels),
+             "input_name": report.records[0].input_name, "input_unit": model.drive.unit}
+    save_figure(plot_diagnosis(report.base.diagnosis, **drive), targets[3], overwrite=overwrite)
+    save_figure(plot_diagnosis(report.final.diagnosis, **drive), targets[4], overwrite=overwrite)
     for i, path in enumerate(targets[5:]):
         save_figure(plot_before_after(report, i), path, overwrite=overwrite)
     return targets

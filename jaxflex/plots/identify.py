@@ -88,19 +88,27 @@ def _spread(rel: np.ndarray) -> str:
 
 
 def _number(value: float) -> str:
-    """Two significant digits, whole numbers from 100 on (no exponent below 10⁶)."""
-    return f"{value:.0f}" if 100 <= value < 1e6 else f"{value:.2g}"
+    """Two significant digits, whole numbers from 100 on (no exponent below 10⁶), ``4.4e7``
+    beyond, ``∞`` for no end."""
+    if not np.isfinite(value):
+        return "∞"
+    if 99.5 <= value < 1e6:
+        return f"{value:.0f}"
+    mantissa, _, exponent = f"{value:.2g}".partition("e")
+    return f"{mantissa}e{int(exponent)}" if exponent else mantissa
 
 
 def _decade_ticks(linthresh: float, left: float, right: float, per_side: int = 3) -> list[float]:
-    """0 and ±powers of ten from ``linthresh`` out to the limits, at most ``per_side`` a side
-    (every second or third decade where more would crowd the labels)."""
+    """0 and ±powers of ten from ``linthresh`` out to the limits, at most ``per_side`` a side,
+    the same decades on both sides (every second or third where more would crowd the labels):
+    equal steps along the axis."""
+    first = int(np.floor(np.log10(linthresh)))
+    lasts = [int(np.floor(np.log10(limit))) if limit >= linthresh else first - 1
+             for limit in (-left, right)]
+    step = max(1, int(np.ceil((max(lasts) - first + 1) / per_side)))
     ticks = [0.0]
-    for sign, limit in ((-1.0, -left), (1.0, right)):
-        first = int(np.floor(np.log10(linthresh)))
-        last = int(np.floor(np.log10(limit))) if limit > linthresh else first - 1
-        step = max(1, int(np.ceil((last - first + 1) / per_side)))
-        ticks += [sign * 10.0**k for k in range(last, first - 1, -step)]
+    for sign, last in zip((-1.0, 1.0), lasts, strict=True):
+        ticks += [sign * 10.0**k for k in range(first, last + 1, step)]
     return sorted(ticks)
 
 
@@ -141,12 +149,12 @@ def plot_intervals(
             ends.extend(np.abs(rel))
             text = f"{name}\n{_spread(rel)}"
             if name in robust:
-                rob = _percent(value, robust[name])
-                rob = np.clip(np.where(np.isfinite(rob), rob, UNIDENTIFIABLE_REACH),
-                              -100.0, UNIDENTIFIABLE_REACH)
-                ax.plot(rob, [yi - 0.28, yi - 0.28], color=colour, alpha=0.45, linewidth=2,
+                rob = _percent(value, robust[name])  # labelled as it is, drawn within reach
+                drawn = np.clip(np.where(np.isfinite(rob), rob, UNIDENTIFIABLE_REACH),
+                                -100.0, UNIDENTIFIABLE_REACH)
+                ax.plot(drawn, [yi - 0.28, yi - 0.28], color=colour, alpha=0.45, linewidth=2,
                         solid_capstyle="butt")
-                ends.extend(np.abs(rob))
+                ends.extend(np.abs(drawn))
                 text += f" (robust {_spread(rob)})"
             labels.append(text)
         ax.plot([0.0], [yi], "o", color=colour, markersize=5)
