@@ -181,7 +181,6 @@ class Comparison:
     units: dict[str, str] = field(default_factory=dict)
     link: str = "tip_acceleration"  # the FRF's output
     input_name: str = "torque"
-    input_unit: str = "N m"  # the drive's input unit (V, A, counts)
 
     def __len__(self) -> int:
         return len(self.rows)
@@ -391,7 +390,6 @@ def compare(
         units=channel_units(model, (*channels, dataset[0].input_name)),
         link=link,
         input_name=dataset[0].input_name,
-        input_unit=model.drive.unit,
     )
 
 

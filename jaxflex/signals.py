@@ -2,17 +2,10 @@
 
 from __future__ import annotations
 
-import warnings
-from collections.abc import Mapping
-from typing import TYPE_CHECKING
-
 import numpy as np
-from jaxtyping import ArrayLike, Float
+from jaxtyping import Float
 
 from jaxflex._arguments import positive
-
-if TYPE_CHECKING:
-    from jaxflex.model import Model
 
 REFERENCE_AMPLITUDES: dict[str, float] = {"triangular": 0.49, "pulse": 0.25, "half_sine": 0.39}
 """Reference inputs of the testbed: shape name → default amplitude (N m), on 0 ≤ t < 0.3 s."""
@@ -118,43 +111,3 @@ def reference_input(
         raise ValueError(f"amplitude must be finite, got {amplitude}")
     t = time_grid(duration, dt)
     return t, _SHAPES[name](t, amplitude)
-
-
-
-
-def rig_amplitude(name: str, model: Model, params: Mapping[str, ArrayLike]) -> float:
-    """Default amplitude of input ``name`` on a rig, in its drive's unit (N m for a torque drive).
-
-    A reference input keeps the testbed's torque (:data:`REFERENCE_AMPLITUDES`) through the
-    drive's gain. An excitation peaks at :data:`EXCITATION_BREAKAWAY_MULTIPLE` times the rig's
-    breakaway torque at ``params`` through the gain, within the drive's saturation: it moves
-    the hub of any rig, whatever its friction and drive.
-    """
-    if name not in _SHAPES:
-        raise ValueError(f"unknown input {name!r}; choose one of {list(INPUT_NAMES)}")
-    gain = model.drive.gain
-    if name in REFERENCE_AMPLITUDES:
-        return REFERENCE_AMPLITUDES[name] / gain
-    amplitude = EXCITATION_BREAKAWAY_MULTIPLE * model.breakaway_torque(params) / gain
-    saturation = getattr(model.drive, "saturation", None)
-    return amplitude if saturation is None else min(amplitude, saturation)
-
-
-def warn_if_held(
-    name: str, model: Model, params: Mapping[str, ArrayLike], signal: Float[ArrayLike, " n"],
-    dt: float,
-) -> bool:
-    """Warn (and return True) when input ``name``'s torque at the hub never exceeds the rig's
-    breakaway torque at ``params``: friction then holds the hub and the record says nothing
-    about the arm. ``signal`` is the logged input in the drive's unit, sampled at ``dt``."""
-    torque = np.asarray(model.input_torque(dict(params), np.asarray(signal, np.float64), dt))
-    peak, breakaway = float(np.max(np.abs(torque), initial=0.0)), model.breakaway_torque(params)
-    if peak > breakaway:
-        return False
-    warnings.warn(
-        f"input {name!r} peaks at {peak:.3g} N m at the hub, which never exceeds the joint's "
-        f"breakaway friction torque {breakaway:.3g} N m: friction holds the hub still; raise "
-        "the amplitude",
-        stacklevel=2,
-    )
-    return True

@@ -168,8 +168,9 @@ def test_compare_scores_each_record_on_the_channels_it_logs(strip, records):
     assert c.mean("nrmse", role=None)["acc"] == full.nrmse["acc"]
     assert c.mean("nrmse", role=None)["hub"] == pytest.approx(
         (full.nrmse["hub"] + hub_only.nrmse["hub"]) / 2, rel=1e-12)
-    row = next(ln for ln in c.table().splitlines() if ln.startswith("hub_only"))
-    assert row.split()[3] == "-"  # NRMSE acc
+    row = next(ln for ln in c.table().splitlines() if ln.split()[:3] == ["hub_only", "held-out",
+                                                                        "acc"])
+    assert row.split()[3:] == ["-", "-", "-"]  # NRMSE, rel.err, floor: no accelerometer logged
     assert "-: the record does not log that channel" in c.table()
 
 
@@ -262,18 +263,21 @@ def test_identify_and_validate_records_with_different_channels(rig, records, tmp
     assert any("record 'hub_only' does not log acc" in m for m in said)
     assert any("record 'held': measured hub is zero throughout" in m for m in said)
     out = capsys.readouterr().out
-    rows = {}  # the first line of each record: the table's (the prediction table's follow)
-    for line in out.splitlines():
-        if line.split()[:1] in (["full"], ["hub_only"], ["held"]):
-            rows.setdefault(line.split()[0], line.split())
-    assert rows["hub_only"][3] == "-" and rows["held"][2:4] == ["no", "motion"]
+    names = ("full", "hub_only", "held")
+    table, _, rest = out.partition("\n\n")  # the time-domain table, then the FRF's and the rest
+    rows = {tuple(cells[:3]): cells[3:] for cells in map(str.split, table.splitlines())
+            if cells[:1] and cells[0] in names}
+    assert rows[("hub_only", "fit", "acc")] == ["-", "-", "-"]
+    assert rows[("held", "held-out", "hub")][:4] == ["no", "motion", "no", "motion"]
     # the prediction table: a line per record and the channels it logs
-    predicted = [cells[:3] for cells in map(str.split, out.splitlines())
-                 if len(cells) > 3 and cells[0] in rows and cells[2] in ("hub", "acc")]
+    prediction = rest.partition("k-step-ahead predictions")[2]
+    predicted = [cells[:3] for cells in map(str.split, prediction.splitlines())
+                 if len(cells) > 3 and cells[0] in names]
     assert predicted == [["full", "fit", "hub"], ["full", "fit", "acc"],
                          ["hub_only", "fit", "hub"], ["held", "held-out", "hub"],
                          ["held", "held-out", "acc"]]
-    held_hub = next(ln for ln in out.splitlines() if ln.split()[:3] == ["held", "held-out", "hub"])
+    held_hub = next(ln for ln in prediction.splitlines()
+                    if ln.split()[:3] == ["held", "held-out", "hub"])
     assert held_hub.split()[3:] == ["no", "motion"] * 3
     figures = sorted(p.name for p in (tmp_path / "report").glob("*.png"))
     assert figures == ["frf.png", "full_prediction.png", "full_time.png", "held_prediction.png",

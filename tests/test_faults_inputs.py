@@ -208,8 +208,8 @@ def test_a_strain_in_microstrain_is_refused_and_the_gain_counts():
     with pytest.raises(ValueError) as info:
         model_record(rig, _log(400.0, "strain"))
     assert str(info.value) == (
-        "record 'run1': channel 'strain' reaches 400 from rest, a strain above 1% (steel yields "
-        "near 0.2 %); is it in µε or %? a strain channel must be in m/m")
+        "record 'run1': channel 'strain' reaches 400 m/m from rest, a strain above 1% (steel "
+        "yields near 0.2 %); is it in µε or %? a strain channel must be in m/m")
     scaled = RIG.replace(sensors=(Encoder(), StrainGauge(channel="strain", x=0.05, gain=1e6)))
     model_record(scaled, _log(400.0, "strain"))  # a gauge calibrated in µε says so: accepted
 

@@ -255,7 +255,8 @@ def _drive(draw) -> dict[str, Any]:
             drive["saturation"] = draw(_within(0.1, 100.0))
     else:
         for f in dataclasses.fields(DRIVES[kind]):
-            drive[f.name] = draw(_within(0.05, 100.0))
+            efficiency = f.name in getattr(DRIVES[kind], "EFFICIENCIES", ())
+            drive[f.name] = draw(_within(0.05, 1.0) if efficiency else _within(0.05, 100.0))
     return drive
 
 
@@ -305,7 +306,8 @@ def arm_contents(draw) -> dict[str, Any]:
                        "mass": density * width * thickness * length}[mass_key]}
     if draw(st.booleans()):
         link["clamp_offset"] = draw(_within(0.0, 0.1))
-    data: dict[str, Any] = {"name": draw(st.text(max_size=10)), "link": link}
+    name = draw(st.text(min_size=1, max_size=10).filter(lambda t: t.strip() and t.isprintable()))
+    data: dict[str, Any] = {"name": name, "link": link}
     if draw(st.booleans()):
         data["description"] = draw(st.text(max_size=20))
     if draw(st.booleans()):

@@ -297,7 +297,7 @@ def test_invented_rig_validate_figures(invented):
     frf = plot_frf(comparison)
     assert_readable(frf, "frf")
     magnitude, phase = frf.axes
-    assert magnitude.get_ylabel() == "|H| (dB re 1/V)"  # strain per volt: the drive's unit
+    assert magnitude.get_ylabel() == "|H| (dB re 1 m/m / V)"  # strain per volt: the drive's unit
     for line in phase.get_lines():
         y = np.asarray(line.get_ydata(), dtype=float)
         y = y[np.isfinite(y)]

@@ -120,8 +120,8 @@ def build_model_and_params(assignments: dict[str, float], effects: list[str], dt
 def run(args: argparse.Namespace) -> int:
     from jaxflex._io import all_or_nothing
     from jaxflex.data import save_record
-    from jaxflex.signals import reference_input, rig_amplitude, warn_if_held
-    from jaxflex.synthetic import add_noise, simulated_record
+    from jaxflex.signals import reference_input
+    from jaxflex.synthetic import add_noise, rig_amplitude, simulated_record, warn_if_held
 
     rig, source = rig_of(args)
     if not rig.sensors and args.rest:
@@ -187,11 +187,8 @@ def simulate_logged(args: argparse.Namespace, arm, out, plot) -> int:
     from jaxflex.data import save_record
     from jaxflex.measured import logged_record, logged_units
     from jaxflex.rest import REST_KEY, rest_note
-    from jaxflex.signals import (
-        reference_input,
-        rig_amplitude,
-        warn_if_held,
-    )
+    from jaxflex.signals import reference_input
+    from jaxflex.synthetic import rig_amplitude, warn_if_held
     from jaxflex.testbed import TESTBED_SETTINGS
 
     if not (math.isfinite(args.rest) and args.rest >= 0):

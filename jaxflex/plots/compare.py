@@ -130,8 +130,7 @@ def plot_frf(
     """
     path = ("torque", "tip_acceleration", {"torque": "N m", "tip_acceleration": "m s⁻²"})
     if isinstance(source, Comparison):
-        path = (source.input_name, source.link, source.units | {
-            source.input_name: source.input_unit})
+        path = (source.input_name, source.link, source.units)
         keys = (
             range(len(source))
             if which is None
@@ -196,7 +195,11 @@ def plot_frf(
             peak_label = None  # one legend entry for every record's peaks
         shown_db += [meas_db[used], model_db[used]]
 
+    label_y, previous = 0.98, -np.inf
     for k, f_res in enumerate(r for r in resonances if r <= f_max):
+        # a label close to the one before it drops a line, so that the two stay apart
+        label_y = 1.89 - label_y if f_res - previous < 0.1 * f_max else 0.98
+        previous = f_res
         for ax in (ax_mag, ax_phase):
             ax.axvline(
                 f_res,
@@ -207,7 +210,7 @@ def plot_frf(
             )
         ax_mag.text(
             f_res,
-            0.98,
+            label_y,
             f" {f_res:.2f} Hz",
             transform=ax_mag.get_xaxis_transform(),
             color=MARK,
