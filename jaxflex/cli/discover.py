@@ -5,7 +5,9 @@ while a score test finds a significant candidate that a refit confirms, and repo
 unexplained. Prints the step table, the explanations and the final model (each parameter with
 its 95 % interval and unit, as ``identify`` prints a fit); ``--json`` writes the
 machine-readable result (``{"steps": [...], "ranking": [...], "unexplained": ...}``),
-``--report DIR`` the table, the JSON and the figures.
+``--report DIR`` the table, the JSON and the figures, ``--out FIT.json`` the final model as a
+fit file (:meth:`jaxflex.discovery.DiscoveryReport.to_fit`), which ``validate --fit`` and
+``discover --initial`` read.
 """
 
 from __future__ import annotations
@@ -19,6 +21,7 @@ from jaxflex.cli._arm import (
     load_rig_records,
     ready_records,
     rig_of,
+    rig_settings,
     sensor_noise,
     windows_of,
     with_effects,
@@ -66,6 +69,10 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--seed", type=seed, default=0, help="random seed (default: %(default)s)")
     add_fit_options(p)
     p.add_argument("--json", metavar="OUT.json", help="write the result as JSON")
+    p.add_argument("--out", metavar="FIT.json",
+                   help="write the final model (its effects, parameters and 95 %% intervals) "
+                        "as a fit file, as `jaxflex identify --out` does: `validate --fit` and "
+                        "`discover --initial` read it")
     p.add_argument("--report", metavar="DIR", help="write table, JSON and figures into DIR")
     p.add_argument("--format", choices=("png", "pdf", "svg"), default="png",
                    help="figure file format (default: png)")
@@ -78,6 +85,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    import dataclasses
+
     from jaxflex._io import all_or_nothing, same_file, write_json
     from jaxflex.discovery import candidate_set, discover
 
@@ -105,7 +114,7 @@ def run(args: argparse.Namespace) -> int:
             if any(same_file(r.source, f.source) for f in records):
                 raise UsageError(f"--holdout {r.source}: is also a record to fit; a held-out "
                                  "record must not be fitted")
-    targets = [("--json", args.json, JSON_SUFFIXES)]
+    targets = [("--json", args.json, JSON_SUFFIXES), ("--out", args.out, JSON_SUFFIXES)]
     if args.report:
         from jaxflex.plots.discover import report_paths
 
@@ -116,7 +125,9 @@ def run(args: argparse.Namespace) -> int:
                   inputs=[*sources(records), *sources(holdout or ()), args.initial,
                           *arm_inputs(source)])
     at_rest = args.initial_state == "rest"
-    records = ready_records(model, records, windows_of(args, model, records), at_rest=at_rest)
+    windows = windows_of(args, model, records)
+    rig = rig_settings(model, source, records, windows)
+    records = ready_records(model, records, windows, at_rest=at_rest)
     if holdout is not None:
         holdout = ready_records(model, holdout, windows_of(args, model, holdout),
                                 at_rest=at_rest)
@@ -135,6 +146,10 @@ def run(args: argparse.Namespace) -> int:
     print(report.summary(), end="")
     paths = []
     with all_or_nothing():
+        if args.out:
+            fit = report.to_fit()
+            dataclasses.replace(fit, settings=fit.settings | rig).to_json(
+                args.out, overwrite=args.overwrite)
         if args.json:
             paths.append(write_json(args.json, report.to_dict(), overwrite=args.overwrite))
         if args.report:
@@ -142,8 +157,9 @@ def run(args: argparse.Namespace) -> int:
 
             paths += save_discovery_report(report, args.report, overwrite=args.overwrite,
                                            fmt=args.format)
-    if args.json:
-        print(f"wrote {args.json}")
+    for path in (args.out, args.json):
+        if path:
+            print(f"wrote {path}")
     if args.report:
         names = ", ".join(p.name for p in paths[bool(args.json):])
         print(f"wrote {len(paths) - bool(args.json)} files to {args.report}: {names}")

@@ -521,6 +521,7 @@ class Engine:
 
     def discovery_fit(self, x: np.ndarray, active: Sequence[int], cost: float) -> DiscoveryFit:
         u = self.universe
+        intervals, covariance = self.intervals(x, active)
         return DiscoveryFit(
             model=u.model_of(active),
             params=u.params(x, active),
@@ -528,30 +529,49 @@ class Engine:
             n_params=int(u.active_mask(active).sum()),
             n_samples=self.n_samples,
             noise=self.noise,
-            intervals=self.intervals(x, active),
+            intervals=intervals,
+            covariance=covariance,
+            objective_cost=self.objective_cost(x),
         )
 
+    def objective_cost(self, x: np.ndarray) -> float:
+        """The identification objective at ``x`` (:mod:`jaxflex.objective`: the weighted mean
+        of the squared NRMSE over records and channels, a fraction), so that the fit's cost
+        means what a fit file's ``cost`` means."""
+        pred, _ = self.evaluate(x, np.zeros(len(x), bool), ())
+        scale = self.problem.objective.layout()[2]
+        e = scale * np.asarray(self.problem.sigma) * (pred - np.asarray(self.problem.measured))
+        return float(e @ e)
+
     def intervals(self, x: np.ndarray, active: Sequence[int], level: float = 0.95
-                  ) -> dict[str, tuple[float, float]]:
-        """Gauss–Newton ``level`` intervals of the fitted parameters at ``x`` (own names): the
-        residuals are whitened by the stated noise levels, so the covariance is ``(JᵀJ)⁻¹`` of
-        the fit's own system; a parameter the records do not determine gets ``(-inf, inf)``."""
+                  ) -> tuple[dict[str, tuple[float, float]], np.ndarray]:
+        """Gauss–Newton ``level`` intervals of the fitted parameters at ``x`` (own names) and
+        their covariance (physical units, rows in the intervals' order): the residuals are
+        whitened by the stated noise levels, so the covariance is ``(JᵀJ)⁻¹`` of the fit's own
+        system; a parameter the records do not determine gets ``(-inf, inf)``."""
         u = self.universe
         cols = np.flatnonzero(u.active_mask(active))
         pred, jac = self.evaluate(x, np.zeros(len(x), bool), cols)
         jac = self._system(pred, jac)[1]
         if not np.all(np.isfinite(jac)):
-            return {}
+            return {}, np.full((0, 0), np.nan)
         norms = np.linalg.norm(jac, axis=0)
         scaled = jac / np.where(norms > 0, norms, 1.0)
+        inverse = np.divide(1.0, norms, out=np.full_like(norms, np.nan), where=norms > 0)
         cov = np.linalg.pinv(scaled.T @ scaled, rcond=1e-12, hermitian=True)
-        var = np.diag(cov) / np.where(norms > 0, norms, np.nan) ** 2
+        cov = cov * np.outer(inverse, inverse)
+        var = np.diag(cov)
         half = stats.norm.ppf(0.5 + 0.5 * level) * np.sqrt(np.where(var > 0, var, np.inf))
         half = np.where(np.isfinite(half), half, np.inf)
         lo, hi = x.copy(), x.copy()
         lo[cols], hi[cols] = x[cols] - half, x[cols] + half
         lower, upper = u.params(lo, active), u.params(hi, active)
-        return {n: (lower[n], upper[n]) for n in upper if n not in u.fixed}
+        intervals = {n: (lower[n], upper[n]) for n in upper if n not in u.fixed}
+        own = {v: o for s in active
+               for v, o in zip(u.slots[s].names, u.slots[s].own_names, strict=True)}
+        names = [own.get(u.space.names[c], u.space.names[c]) for c in cols]
+        order = [names.index(n) for n in intervals]
+        return intervals, cov[np.ix_(order, order)]
 
     # --- score tests --------------------------------------------------------------------------
     def score_tests(self, x: np.ndarray, active: Sequence[int], alpha: float,

@@ -4,7 +4,9 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
-from typing import Any
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
 
 from jaxflex._io import provenance, to_jsonable
 from jaxflex.data import Dataset
@@ -17,6 +19,9 @@ from jaxflex.discovery.scores import ScoreResult
 from jaxflex.model import Model
 from jaxflex.simulation import Outputs
 
+if TYPE_CHECKING:
+    from jaxflex.fit import Fit
+
 SHORT: dict[str, str] = {"joint_angle": "angle", "tip_acceleration": "tip acc",
                          "root_strain": "strain", "tip_deflection": "deflection",
                          "joint_velocity": "velocity", "joint_torque": "torque"}
@@ -27,7 +32,9 @@ class DiscoveryFit:
     """A fitted model structure: the model, its parameters and the discovery-likelihood cost.
 
     ``cost`` is ``C`` of :mod:`jaxflex.discovery` (``−2 log L`` up to a constant), ``bic`` is
-    ``C + n_params·ln(n_samples)``.
+    ``C + n_params·ln(n_samples)``. ``covariance`` is that of the fitted parameters (physical
+    units, in the order of ``intervals``), ``objective_cost`` the identification objective at
+    ``params`` (:mod:`jaxflex.objective`): what a fit file calls its cost.
     """
 
     model: Model | None  # None for the rigid-body rung of the ladder
@@ -37,6 +44,8 @@ class DiscoveryFit:
     n_samples: int
     noise: dict[str, NoiseLevel]
     intervals: dict[str, tuple[float, float]] = field(default_factory=dict)  # 95 %, fitted ones
+    covariance: np.ndarray | None = field(default=None, repr=False, compare=False)
+    objective_cost: float = math.nan
 
     @property
     def effects(self) -> tuple[str, ...]:
@@ -237,6 +246,64 @@ class DiscoveryReport:
                 if r.explanation:
                     lines.append(r.explanation)
         return lines
+
+    def to_fit(self) -> Fit:
+        """The final model as a fit (:class:`jaxflex.fit.Fit`, the file ``identify --out``
+        writes), so that ``validate --fit`` and ``discover --initial`` take it.
+
+        Its intervals, standard deviations and covariance are the ones :meth:`summary` prints
+        (Gauss–Newton on the discovery likelihood at the stated noise levels); ``cost`` is the
+        identification objective at the final parameters, ``noise`` each channel's σ. No search
+        ran on the final model: ``cost_search`` is NaN, the history empty, and ``method`` names
+        the base model's search (``settings["search"]`` is null where the run started from
+        given parameters). A ValueError if the final model is the rigid-body rung (no flexible
+        model to write; :func:`discover` always keeps the base model).
+        """
+        from jaxflex.fit import Fit, History
+
+        final = self.final.fit
+        if final.model is None:
+            raise ValueError("the final model is the rigid-body one: no flexible model to "
+                             "write as a fit")
+        fixed = dict(self.settings.get("fixed", {}))
+        names = tuple(final.intervals) or tuple(n for n in final.model.space.names
+                                                if n not in fixed)
+        covariance = np.full((0, 0), np.nan) if final.covariance is None else final.covariance
+        std = np.sqrt(np.abs(np.diag(covariance)))
+        with np.errstate(invalid="ignore", divide="ignore"):
+            correlation = covariance / np.outer(std, std)
+        search = self.settings.get("search") or {}
+        empty = np.zeros(0)
+        return Fit(
+            params={n: float(final.params[n]) for n in final.model.space.names},
+            names=names,
+            fixed=fixed,
+            model=final.model,
+            cost=final.objective_cost,
+            cost_search=math.nan,
+            intervals=dict(final.intervals),
+            std=dict(zip(final.intervals, map(float, std), strict=True)),
+            covariance=covariance,
+            correlation=correlation,
+            noise={c: float(level.sigma) for c, level in final.noise.items()},
+            poorly_identifiable=(),
+            warnings=(),
+            history=History(best=empty, mean=empty, best_params={n: empty for n in names}),
+            refinement=None,
+            method=str(search.get("method", "de")).lower(),
+            seed=int(self.settings["seed"]),
+            settings={**self.settings, **({"strategy": {k: v for k, v in search.items()
+                                                        if k != "method"}} if search else {}),
+                      "structure": self.final.structure,
+                      "added": list(self.added), "withdrawn": list(self.withdrawn),
+                      "discovery_cost": final.cost, "bic": final.bic},
+            timing={"total": self.wall_time},
+            record_names=self.records.names,
+            provenance=provenance(),
+            unidentifiable=tuple(n for n, (lo, hi) in final.intervals.items()
+                                 if not (math.isfinite(lo) and math.isfinite(hi))),
+            initial_state=self.settings.get("initial_state", "rest"),
+        )
 
     def to_dict(self) -> dict[str, Any]:
         """The JSON contract of ``jaxflex discover --json``."""
