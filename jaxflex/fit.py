@@ -107,7 +107,9 @@ class Fit:
     infinite or spans decades: not identifiable from these records. ``initial_state`` and, by
     record, ``initial_states`` and their ``initial_state_intervals``: where the records started
     (:mod:`jaxflex.initial`; empty at rest). Fit files written before these fields existed load
-    with them empty.
+    with them empty. A fit made otherwise than by a search (``jaxflex discover --out``) says so
+    in ``settings``: ``made_by`` heads its summary, ``interval_basis`` says how its intervals
+    were computed.
     """
 
     params: dict[str, float]
@@ -175,9 +177,10 @@ class Fit:
     def summary(self) -> str:
         """A text table: value, nominal interval and relative half-width of each parameter,
         and the robust half-width beside it; what the intervals assume, in words."""
+        search = f"search {self.cost_search:.6g}, " if math.isfinite(self.cost_search) else ""
         lines = [
-            f"{self.method.upper()} seed {self.seed}: cost {self.cost:.6g} "
-            f"(search {self.cost_search:.6g}, rms NRMSE {self.nrmse:.4g} %)",
+            f"{self.settings.get('made_by', self.method.upper())} seed {self.seed}: cost "
+            f"{self.cost:.6g} ({search}rms NRMSE {self.nrmse:.4g} %)",
             *parameter_table(self.params, self.intervals, parameter_units(self.model),
                              level=self.level, robust=self.robust_intervals,
                              unidentifiable=self.unidentifiable,
@@ -196,7 +199,10 @@ class Fit:
         return "\n".join(lines) + "\n"
 
     def interval_note(self) -> str:
-        """One sentence: what the intervals assume and whether the residuals allow it."""
+        """One sentence: what the intervals assume and whether the residuals allow it (or
+        how they were computed, where the fit states it: ``settings["interval_basis"]``)."""
+        if self.settings.get("interval_basis"):
+            return f"intervals: {self.settings['interval_basis']}"
         if not self.residual_checks:
             return ("intervals: assume the model is right and the noise white (not checked: "
                     "this fit predates the residual checks)")

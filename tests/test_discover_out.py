@@ -63,6 +63,9 @@ def test_discover_writes_its_final_model_as_a_fit_file(case, tmp_path, capsys):
     assert fit.record_names == (Path(csv).stem,) and fit.seed == 0
     assert fit.settings["structure"] == "base + payload" and fit.settings["rig"]
     assert fit.provenance["versions"]["jaxflex"]
+    summary = fit.summary()  # says what made it and how its intervals were computed
+    assert summary.startswith("discover (base + payload) seed 0: cost ")
+    assert "intervals: Gauss-Newton at the stated noise levels" in summary
 
     # validate --fit: the model discover ended with, the same NRMSE over the same span
     table = tmp_path / "validate.json"

@@ -27,6 +27,11 @@ SHORT: dict[str, str] = {"joint_angle": "angle", "tip_acceleration": "tip acc",
                          "joint_velocity": "velocity", "joint_torque": "torque"}
 """Short channel names of the step table's columns."""
 
+INTERVAL_BASIS = ("Gauss-Newton at the stated noise levels; they assume the final model is "
+                  "right and the noise as stated")
+"""How the final model's intervals are computed, in the summary and in its fit file."""
+
+
 @dataclass(frozen=True)
 class DiscoveryFit:
     """A fitted model structure: the model, its parameters and the discovery-likelihood cost.
@@ -233,8 +238,7 @@ class DiscoveryReport:
                  f"{final.n_params} fitted parameters)",
                  *parameter_table(final.params, final.intervals, parameter_units(final.model),
                                   level=0.95),
-                 "intervals: Gauss-Newton at the stated noise levels; they assume the final "
-                 "model is right and the noise as stated"]
+                 f"intervals: {INTERVAL_BASIS}"]
         return "\n".join(lines) + "\n"
 
     def explanations(self) -> list[str]:
@@ -268,11 +272,14 @@ class DiscoveryReport:
         fixed = dict(self.settings.get("fixed", {}))
         names = tuple(final.intervals) or tuple(n for n in final.model.space.names
                                                 if n not in fixed)
-        covariance = np.full((0, 0), np.nan) if final.covariance is None else final.covariance
+        covariance = final.covariance
+        if covariance is None or len(covariance) != len(final.intervals):
+            covariance = np.full((0, 0), np.nan)  # none computed: intervals alone
         std = np.sqrt(np.abs(np.diag(covariance)))
         with np.errstate(invalid="ignore", divide="ignore"):
             correlation = covariance / np.outer(std, std)
         search = self.settings.get("search") or {}
+        start = self.settings.get("initial_state", "rest")
         empty = np.zeros(0)
         return Fit(
             params={n: float(final.params[n]) for n in final.model.space.names},
@@ -282,19 +289,22 @@ class DiscoveryReport:
             cost=final.objective_cost,
             cost_search=math.nan,
             intervals=dict(final.intervals),
-            std=dict(zip(final.intervals, map(float, std), strict=True)),
+            std=dict(zip(final.intervals, map(float, std), strict=False)),
             covariance=covariance,
             correlation=correlation,
             noise={c: float(level.sigma) for c, level in final.noise.items()},
             poorly_identifiable=(),
-            warnings=(),
+            warnings=() if start == "rest" else (
+                f"the records' initial states ({start}) are not kept: validate with "
+                f"--initial-state {start} to estimate them again",),
             history=History(best=empty, mean=empty, best_params={n: empty for n in names}),
             refinement=None,
             method=str(search.get("method", "de")).lower(),
             seed=int(self.settings["seed"]),
             settings={**self.settings, **({"strategy": {k: v for k, v in search.items()
                                                         if k != "method"}} if search else {}),
-                      "structure": self.final.structure,
+                      "made_by": f"discover ({self.final.structure})",
+                      "interval_basis": INTERVAL_BASIS, "structure": self.final.structure,
                       "added": list(self.added), "withdrawn": list(self.withdrawn),
                       "discovery_cost": final.cost, "bic": final.bic},
             timing={"total": self.wall_time},
@@ -302,7 +312,7 @@ class DiscoveryReport:
             provenance=provenance(),
             unidentifiable=tuple(n for n, (lo, hi) in final.intervals.items()
                                  if not (math.isfinite(lo) and math.isfinite(hi))),
-            initial_state=self.settings.get("initial_state", "rest"),
+            initial_state=start,
         )
 
     def to_dict(self) -> dict[str, Any]:
