@@ -94,20 +94,25 @@ def test_discover_writes_its_final_model_as_a_fit_file(case, tmp_path, capsys):
 
 
 def test_discover_out_is_checked_before_any_work(case, tmp_path, capsys):
-    """An existing ``--out`` without ``--overwrite``, one in a folder that is a file, or one
-    that is not JSON: refused in one line naming ``--out``, nothing computed or written."""
+    """An existing ``--out`` without ``--overwrite``, one in a folder that is a file, one that
+    is not JSON, the ``--json`` file or the start: refused in one line naming ``--out``, nothing
+    computed or written."""
     csv, start = case
     existing = tmp_path / "fit.json"
     existing.write_text("{}")
     blocker = tmp_path / "file"
     blocker.write_text("")
     report = tmp_path / "discovery.json"
-    for out, why in ((existing, "exists"), (blocker / "fit.json", ""),
-                     (tmp_path / "fit.txt", ".json")):
-        assert main(discover_args(csv, start, "--out", str(out), "--json", str(report))) == 2
+    for out, why, *more in ((existing, f"--out {existing}: file exists; pass --overwrite"),
+                            (blocker / "fit.json", f"--out {blocker / 'fit.json'}: "),
+                            (tmp_path / "fit.txt", ".json"),
+                            (report, "--json writes the same file"),
+                            (start, "is an input of this command", "--overwrite")):
+        assert main(discover_args(csv, start, "--out", str(out), "--json", str(report),
+                                  *more)) == 2
         said = capsys.readouterr()
         assert said.out == "" and why in said.err
         line, = said.err.strip().splitlines()
         assert "--out" in line
         assert not report.exists()
-    assert existing.read_text() == "{}"
+    assert existing.read_text() == "{}" and json.loads(start.read_text()) == START
