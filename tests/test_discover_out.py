@@ -1,5 +1,6 @@
 """``jaxflex discover --out FIT.json``: the final model as a fit file that ``validate --fit`` and
-``discover --initial`` read, checked before any work like every output."""
+``discover --initial`` and ``identify --initial`` read, checked before any work like every
+output."""
 
 from __future__ import annotations
 
@@ -90,6 +91,15 @@ def test_discover_writes_its_final_model_as_a_fit_file(case, tmp_path, capsys):
     base = json.loads(again.read_text())["steps"][-1]
     assert base["effects"] == ["payload"]
     assert base["params"]["m_p"] == pytest.approx(fit.params["m_p"], rel=0.02)
+
+    # identify --initial: the fit's rig and effects, its parameters seeding the search, whose
+    # best is then no worse than the fit it started from
+    seeded = tmp_path / "seeded.json"
+    assert main(["identify", csv, "--initial", str(out), "--generations", "1", "--population",
+                 "4", "--no-refine", "--quiet", "--out", str(seeded)]) == 0
+    refit = load_fit(seeded)
+    assert refit.effects == ("payload",) and refit.settings["seeded"] == 1
+    assert refit.cost <= fit.cost * (1 + 1e-9)
     capsys.readouterr()
 
 
@@ -116,3 +126,18 @@ def test_discover_out_is_checked_before_any_work(case, tmp_path, capsys):
         assert "--out" in line
         assert not report.exists()
     assert existing.read_text() == "{}" and json.loads(start.read_text()) == START
+
+
+def test_identify_initial_is_checked_before_any_work(case, tmp_path, capsys):
+    """A missing fit file, or effects given beside one, refused in one line, nothing written."""
+    csv, _ = case
+    out = tmp_path / "fit.json"
+    for more, why in ((["--initial", str(tmp_path / "none.json")],
+                       f"--initial {tmp_path / 'none.json'}: fit file not found"),
+                      (["--initial", str(out), "--effect", "payload"],
+                       "--effect with --initial: the fit file fixes the model's effects")):
+        assert main(["identify", csv, *more, "--quiet", "--out", str(out)]) == 2
+        said = capsys.readouterr()
+        line, = said.err.strip().splitlines()
+        assert said.out == "" and line.startswith(f"jaxflex identify: error: {why}")
+        assert not out.exists()

@@ -269,7 +269,11 @@ def _a_users_strip_with_default_options(jaxflex: list[str], work: Path, env: dic
     rows = json.loads((work / "strip_table.json").read_text())["records"]
     assert [(r["name"], r["role"]) for r in rows] == [("strip_chirp", "fit"),
                                                        ("strip_multisine", "held-out")]
-    assert all(0 < v < 20 for r in rows for v in r["nrmse"].values()), rows
+    # the right model misses by the sensor noise alone: each NRMSE sits at its noise floor
+    report = json.loads((work / "strip_report" / "comparison.json").read_text())["records"]
+    for row in report:
+        floors = row["noise_floor_percent"]
+        assert all(0 < v < 1.25 * floors[c] + 1.0 for c, v in row["nrmse_percent"].items()), row
     _run([*jaxflex, "discover", "strip_chirp.csv", "--holdout", "strip_multisine.csv",
           "--arm", "strip.toml", "--initial", "strip_fit.json", "--quiet", "--json",
           "strip_discover.json"], work, env)

@@ -6,8 +6,8 @@ unexplained. Prints the step table, the explanations and the final model (each p
 its 95 % interval and unit, as ``identify`` prints a fit); ``--json`` writes the
 machine-readable result (``{"steps": [...], "ranking": [...], "unexplained": ...}``),
 ``--report DIR`` the table, the JSON and the figures, ``--out FIT.json`` the final model as a
-fit file (:meth:`jaxflex.discovery.DiscoveryReport.to_fit`), which ``validate --fit`` and
-``discover --initial`` read.
+fit file (:meth:`jaxflex.discovery.DiscoveryReport.to_fit`), which ``validate --fit``,
+``discover --initial`` and ``identify --initial`` read.
 """
 
 from __future__ import annotations
@@ -71,8 +71,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--json", metavar="OUT.json", help="write the result as JSON")
     p.add_argument("--out", metavar="FIT.json",
                    help="write the final model (its effects, parameters and 95 %% intervals) "
-                        "as a fit file, as `jaxflex identify --out` does: `validate --fit` and "
-                        "`discover --initial` read it")
+                        "as a fit file, as `jaxflex identify --out` does: `validate --fit`, "
+                        "`discover --initial` and `identify --initial` read it")
     p.add_argument("--report", metavar="DIR", help="write table, JSON and figures into DIR")
     p.add_argument("--format", choices=("png", "pdf", "svg"), default="png",
                    help="figure file format (default: png)")

@@ -27,6 +27,7 @@ from jaxflex.cli._checks import (
     check_outputs,
     positive_float,
     positive_int,
+    read_fit,
     seed,
 )
 from jaxflex.cli._options import (
@@ -72,6 +73,9 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--refine-starts", type=positive_int, default=1, metavar="K",
                    help="refine from the K best candidates (default: %(default)s)")
     p.add_argument("--out", required=True, metavar="FIT.json", help="where to write the fit")
+    p.add_argument("--initial", metavar="FIT.json",
+                   help="start from a fit (`identify --out` or `discover --out`): its rig and "
+                        "effects, its parameters seeding the search")
     p.add_argument("--criterion", choices=("output", "prediction"), default="output",
                    help="fit the free simulation (output error, the default) or the Kalman "
                         "filter's one-step predictions (prediction error: closed-loop records, "
@@ -101,19 +105,26 @@ def run(args: argparse.Namespace) -> int:
     check_disturbance(args.disturbance)
     if (status := enter(args)) is not None:
         return status
-    rig, source = rig_of(args)
+    initial = None
+    if args.initial:
+        if args.effect:
+            raise UsageError("--effect with --initial: the fit file fixes the model's effects")
+        initial = read_fit("--initial", args.initial)[2]
+    rig, source = rig_of(args, initial)
     model = with_effects(rig, args.effect)
     records = load_rig_records(args.data, args, model)
     out, *plot = check_outputs(
         [("--out", args.out, JSON_SUFFIXES), ("--plot", args.plot, FIGURE_SUFFIXES)]
         + [("--plot", p, FIGURE_SUFFIXES) for p in record_figures(args.plot, records)],
-        overwrite=args.overwrite, inputs=[*sources(records), *arm_inputs(source)],
+        overwrite=args.overwrite,
+        inputs=[*sources(records), *arm_inputs(source), *([args.initial] if initial else [])],
     )
     windows = windows_of(args, model, records)
     ready = ready_records(model, records, windows, at_rest=args.initial_state == "rest")
     criterion = {} if args.criterion == "output" else {"criterion": args.criterion,
                                                         "disturbance": args.disturbance}
-    fit = search(args, ready, model, fit_keywords(args, identify) | criterion)
+    seeded = {} if initial is None else {"init_population": initial}
+    fit = search(args, ready, model, fit_keywords(args, identify) | criterion | seeded)
     if not is_main():
         return 0
     rig = rig_settings(model, source, records, windows)
