@@ -156,23 +156,15 @@ _SOURCES: dict[str, tuple[str, ...]] = {
     "jaxflex.testbed": ("Testbed",),
 }
 """Where each top-level name is defined (the imports above, for the interpreter)."""
-_MODULE_OF = {name: module for module, names in _SOURCES.items() for name in names}
+_MODULE_OF = {name: (module, name) for module, names in _SOURCES.items() for name in names}
 
 
 def __getattr__(name: str):
     """A top-level name, imported from its module on first use (PEP 562); a submodule too
     (``jaxflex.data.load_dataset`` after ``import jaxflex``, as when every module was loaded)."""
-    from importlib import import_module
-    from importlib.util import find_spec
+    from jaxflex._lazy import lazy_attribute
 
-    if name in _MODULE_OF:
-        value = getattr(import_module(_MODULE_OF[name]), name)
-    elif not name.startswith("__") and find_spec(f"{__name__}.{name}") is not None:
-        value = import_module(f"{__name__}.{name}")
-    else:
-        raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
-    globals()[name] = value
-    return value
+    return lazy_attribute(__name__, name, _MODULE_OF, globals())
 
 
 def __dir__() -> list[str]:

@@ -31,3 +31,11 @@ def positive(value: object, name: str) -> float:
 def shown(value: object) -> str:
     """``value`` as an error message shows a wrong argument: ``123 (int)``, ``None``."""
     return "None" if value is None else f"{value!r} ({type(value).__name__})"
+
+
+def raised(exc: BaseException, limit: int = 300) -> str:
+    """An exception as one line of an error message: ``TypeError: words`` with its whitespace
+    collapsed and cut to ``limit`` characters (JAX's own messages run over many lines)."""
+    words = " ".join(str(exc).split())
+    shown_words = words if len(words) <= limit else words[: limit - 3] + "..."
+    return f"{type(exc).__name__}: {shown_words}"

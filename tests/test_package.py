@@ -38,7 +38,7 @@ def test_every_top_level_name_is_imported_on_first_use_from_its_module():
                    and ast.unparse(n.test) == "TYPE_CHECKING")
     static = {a.name: n.module for n in guarded.body for a in n.names}
     assert static.pop("datasets") == "jaxflex"
-    assert static == jaxflex._MODULE_OF
+    assert {name: (module, name) for name, module in static.items()} == jaxflex._MODULE_OF
     assert set(jaxflex.__all__) == set(static) | {"datasets"}
     for name, module in static.items():
         assert getattr(jaxflex, name) is getattr(importlib.import_module(module), name)

@@ -22,9 +22,9 @@ def _module_name(path: Path) -> str:
 MODULES = {_module_name(p): p for p in sorted(PACKAGE.rglob("*.py"))}
 
 LAYERS: tuple[tuple[str, tuple[str, ...]], ...] = (
-    ("foundations", ("_arguments", "_host", "_io", "_linalg", "_progress", "registry", "parallel",
-                     "metrics", "signals", "units", "records", "noise", "testbed", "parameters",
-                     "stations")),
+    ("foundations", ("_arguments", "_host", "_io", "_lazy", "_linalg", "_progress", "registry",
+                     "parallel", "metrics", "signals", "units", "records", "noise", "testbed",
+                     "parameters", "stations")),
     ("physics", ("fem", "modal", "effects", "drives", "sensors", "model", "friction_solve",
                  "simulation", "fused", "frequency_response")),
     ("numerics", ("evolve", "least_squares")),

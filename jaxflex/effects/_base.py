@@ -29,6 +29,7 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Float
 
+from jaxflex._arguments import raised
 from jaxflex.parameters import ParameterSpec, Params
 
 
@@ -109,10 +110,7 @@ def blamed(effect: AbstractEffect, hook: str) -> Iterator[None]:
     except EffectError:
         raise
     except Exception as exc:
-        words = " ".join(str(exc).split())
-        shown = words if len(words) <= 300 else words[:297] + "..."
-        raise EffectError(f"effect {effect_label(effect)}: {hook} raised "
-                          f"{type(exc).__name__}: {shown}") from exc
+        raise EffectError(f"effect {effect_label(effect)}: {hook} raised {raised(exc)}") from exc
 
 
 def returned(effect: AbstractEffect, hook: str, value: Any, shape: tuple[int, ...],

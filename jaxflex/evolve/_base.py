@@ -23,6 +23,7 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, ArrayLike, Float, Int, PRNGKeyArray
 
+from jaxflex._arguments import raised
 from jaxflex._progress import Progress
 from jaxflex.parallel import gathered, gathered_sharding
 from jaxflex.parameters import into_unit_box
@@ -339,10 +340,8 @@ def _traced(strategy: AbstractStrategy, method: str, lower: Callable[[], Any]) -
     except StrategyError:
         raise
     except Exception as exc:
-        words = " ".join(str(exc).split())
-        shown = words if len(words) <= 300 else words[:297] + "..."
         raise StrategyError(f"strategy {_strategy_label(strategy)}: {method} raised "
-                            f"{type(exc).__name__}: {shown}") from exc
+                            f"{raised(exc)}") from exc
 
 
 def _said(value: Any) -> str:

@@ -34,22 +34,14 @@ _SOURCES: dict[str, tuple[str, str]] = {
     "plot_prediction": ("prediction", "plot_prediction"),
 }
 """Each lazily imported name: its module under ``jaxflex.plots`` and its name there."""
+_QUALIFIED = {name: (f"{__name__}.{module}", attr) for name, (module, attr) in _SOURCES.items()}
 
 
 def __getattr__(name: str):
     """A figure function, imported from its module on first use (PEP 562); a submodule too."""
-    from importlib import import_module
-    from importlib.util import find_spec
+    from jaxflex._lazy import lazy_attribute
 
-    if name in _SOURCES:
-        module, attribute = _SOURCES[name]
-        value = getattr(import_module(f"{__name__}.{module}"), attribute)
-    elif not name.startswith("__") and find_spec(f"{__name__}.{name}") is not None:
-        value = import_module(f"{__name__}.{name}")
-    else:
-        raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
-    globals()[name] = value
-    return value
+    return lazy_attribute(__name__, name, _QUALIFIED, globals())
 
 
 def __dir__() -> list[str]:
