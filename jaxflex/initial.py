@@ -364,21 +364,55 @@ def simulate_record(model: Model, params: Mapping[str, float], record: Record,
     return calibrated(model, dict(params), out)
 
 
-def simulate_started(model: Model, params: Mapping[str, float], records, channels,
-                     option: str = "rest", modes: int = DEFAULT_MODES,
-                     states: Mapping[str, Float[np.ndarray, " c"]] | None = None,
-                     ) -> tuple[Outputs, ...]:
-    """Each record's readings at ``params`` from where it starts: its coordinates in
-    ``states`` where given, else its own estimated or periodic state under ``option`` (over
-    those of ``channels`` it logs), else rest."""
-    from jaxflex.simulation import simulate_readings
+LEAD_IN_PERIODS = 2.0
+"""A held-out record's state is estimated from its first this many periods of the model's
+lowest flexible mode (:func:`lead_in`): long enough to tell that mode's displacement from its
+velocity, short enough that the rest of the record is predicted, not fitted."""
+MIN_LEAD_IN = 0.2
+"""The shortest lead-in (s), for a stiff link whose lowest mode rings fast."""
 
+
+def lead_in(model: Model, params: Mapping[str, float], record: Record, modes: int) -> float:
+    """The span (s) at ``record``'s start from which its state is estimated when it is held
+    out: :data:`LEAD_IN_PERIODS` periods of the lowest free-hub mode at ``params`` (at least
+    :data:`MIN_LEAD_IN` s and four samples per coordinate), at most half the record."""
+    values = {k: float(v) for k, v in params.items()}
+    omega = float(free_hub_modes(model.structure(values)).omega[0])
+    span = max(LEAD_IN_PERIODS * 2.0 * math.pi / omega, MIN_LEAD_IN,
+               4 * (2 + 2 * modes) * record.dt)
+    return min(span, 0.5 * record.duration)
+
+
+def started_states(model: Model, params: Mapping[str, float], records, channels,
+                   option: str = "rest", modes: int = DEFAULT_MODES,
+                   states: Mapping[str, Float[np.ndarray, " c"]] | None = None,
+                   ) -> tuple[dict[str, np.ndarray], dict[str, float]]:
+    """Where each record starts: its coordinates in ``states`` where given (a fit's own),
+    else, under ``option`` ``estimate`` or ``periodic``, its state estimated from its
+    :func:`lead_in` alone over those of ``channels`` it logs (the record is held out: the rest
+    of it is predicted); none at rest. Returns the coordinates and the lead-ins (s) by name."""
     states = {k: np.asarray(v, dtype=float) for k, v in (states or {}).items()}
+    spans: dict[str, float] = {}
     if option != "rest":
         for record in records:
             if record.name not in states:
                 own = [c for c in channels if c in record.columns]
-                states |= record_states(model, params, [record], own, option, modes)
+                span = lead_in(model, params, record, modes) if option == "estimate" else None
+                part = record if span is None else record.trim(t_end=record.time[0] + span)
+                states |= record_states(model, params, [part], own, option, modes)
+                if span is not None:
+                    spans[record.name] = span
+    return states, spans
+
+
+def simulate_started(model: Model, params: Mapping[str, float], records, channels,
+                     option: str = "rest", modes: int = DEFAULT_MODES,
+                     states: Mapping[str, Float[np.ndarray, " c"]] | None = None,
+                     ) -> tuple[Outputs, ...]:
+    """Each record's readings at ``params`` from where it starts (:func:`started_states`)."""
+    from jaxflex.simulation import simulate_readings
+
+    states, _ = started_states(model, params, records, channels, option, modes, states)
     return tuple(
         simulate_record(model, params, r, states[r.name]) if r.name in states
         else simulate_readings(model, params, r.input, dt=r.dt)
@@ -452,5 +486,6 @@ def state_lines(states: Mapping[str, Mapping[str, float]],
 __all__ = ["DEFAULT_MODES", "INITIAL_STATES", "check_initial_modes", "check_initial_state",
            "check_record_length", "coordinate_names", "coordinate_units", "estimate_state",
            "gauss_newton", "initial_state_report", "input_period", "periodic_state",
-           "record_states", "simulate_from", "simulate_record", "simulate_started", "start_state",
+           "lead_in", "record_states", "simulate_from", "simulate_record", "simulate_started",
+           "start_state", "started_states",
            "state_lines", "why_not_still"]

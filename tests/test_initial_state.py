@@ -15,11 +15,13 @@ from jaxflex import Model, identify
 from jaxflex.cli import _options, main
 from jaxflex.comparison import compare
 from jaxflex.data import Record, load_record, save_record
+from jaxflex.frequency_response import natural_frequencies
 from jaxflex.identification import Fit
 from jaxflex.initial import (
     DEFAULT_MODES,
     INITIAL_STATES,
     input_period,
+    lead_in,
     record_states,
     why_not_still,
 )
@@ -141,6 +143,33 @@ def test_the_estimated_state_at_the_truth_is_the_reference_state(mid_run):
 
 
 @pytest.mark.slow  # about 2 min on the 2-core machine: three DE 10 x 16 fits, refinement
+def test_a_held_out_record_starts_from_the_state_of_its_lead_in_alone(mid_run):
+    """Held out, a record's state is estimated from its first two periods of the lowest mode
+    only: what follows may change without moving it, the state is near Radau's, the rest is
+    predicted to the noise, and the comparison says how long the lead-in was and keeps the
+    state in its JSON."""
+    torque, outputs, (angle, velocity, _, _) = mid_run
+    record = _record("mid", outputs, torque, seed=1)
+    span = lead_in(MODEL, TRUTH, record, 2)
+    period = 1.0 / float(natural_frequencies(MODEL, TRUTH)[0])
+    assert span == pytest.approx(max(2.0 * period, 0.2), rel=1e-12) and span < record.duration / 2
+    c = compare([record], MODEL, TRUTH, t_end=None, initial_state="estimate")
+    assert c.lead_ins == {"mid": span}
+    z = c.initial_states["mid"]
+    assert z["angle"] == pytest.approx(angle, abs=1e-3)
+    assert z["velocity"] == pytest.approx(velocity, rel=0.05)
+    assert max(c[0].nrmse.values()) < 5.0, c[0].nrmse
+    # the samples after the lead-in take no part in the state
+    late = record.time > span + record.dt
+    changed = record.with_outputs(joint_angle=np.where(late, record.joint_angle + 0.3,
+                                                       record.joint_angle))
+    again = compare([changed], MODEL, TRUTH, t_end=None, initial_state="estimate")
+    assert again.initial_states == c.initial_states
+    data = json.loads(json.dumps(c.to_dict()))
+    assert data["lead_in_s"] == {"mid": span} and data["initial_states"]["mid"] == z
+    assert f"mid {span:.3g} s" in " ".join(c.table().split())
+
+
 def test_parameters_and_state_of_a_record_logged_mid_run_are_recovered(mid_run, tmp_path):
     torque, outputs, state = mid_run
     save_record(_record("mid", outputs, torque, seed=1), tmp_path / "mid.csv")
