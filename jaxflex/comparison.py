@@ -364,8 +364,9 @@ def compare(
              if s.noise_std > 0 and s.channel in channels}
 
     check_initial_state(initial_state)
+    held_out = [r.name for r in dataset if r.name not in fit_names]
     states, lead_ins = started_states(model, values, dataset, channels, initial_state,
-                                      initial_modes, initial_states)
+                                      initial_modes, initial_states, held_out)
     outputs = simulate_started(model, values, dataset, channels, initial_state, initial_modes,
                                states)
     rows, simulated = [], []

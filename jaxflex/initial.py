@@ -27,7 +27,7 @@ Three options (:data:`INITIAL_STATES`):
 from __future__ import annotations
 
 import math
-from collections.abc import Callable, Mapping
+from collections.abc import Callable, Collection, Mapping
 from typing import TYPE_CHECKING
 
 import equinox as eqx
@@ -386,18 +386,21 @@ def lead_in(model: Model, params: Mapping[str, float], record: Record, modes: in
 def started_states(model: Model, params: Mapping[str, float], records, channels,
                    option: str = "rest", modes: int = DEFAULT_MODES,
                    states: Mapping[str, Float[np.ndarray, " c"]] | None = None,
+                   held_out: Collection[str] = (),
                    ) -> tuple[dict[str, np.ndarray], dict[str, float]]:
     """Where each record starts: its coordinates in ``states`` where given (a fit's own),
-    else, under ``option`` ``estimate`` or ``periodic``, its state estimated from its
-    :func:`lead_in` alone over those of ``channels`` it logs (the record is held out: the rest
-    of it is predicted); none at rest. Returns the coordinates and the lead-ins (s) by name."""
+    else its state under ``option`` (``estimate`` or ``periodic``) over those of ``channels``
+    it logs; none at rest. A record named in ``held_out`` has its state estimated from its
+    :func:`lead_in` alone, so that the rest of it is predicted, not fitted. Returns the
+    coordinates and the lead-ins (s) by name."""
     states = {k: np.asarray(v, dtype=float) for k, v in (states or {}).items()}
     spans: dict[str, float] = {}
     if option != "rest":
         for record in records:
             if record.name not in states:
                 own = [c for c in channels if c in record.columns]
-                span = lead_in(model, params, record, modes) if option == "estimate" else None
+                span = (lead_in(model, params, record, modes)
+                        if option == "estimate" and record.name in held_out else None)
                 part = record if span is None else record.trim(t_end=record.time[0] + span)
                 states |= record_states(model, params, [part], own, option, modes)
                 if span is not None:
@@ -408,11 +411,13 @@ def started_states(model: Model, params: Mapping[str, float], records, channels,
 def simulate_started(model: Model, params: Mapping[str, float], records, channels,
                      option: str = "rest", modes: int = DEFAULT_MODES,
                      states: Mapping[str, Float[np.ndarray, " c"]] | None = None,
+                     held_out: Collection[str] = (),
                      ) -> tuple[Outputs, ...]:
     """Each record's readings at ``params`` from where it starts (:func:`started_states`)."""
     from jaxflex.simulation import simulate_readings
 
-    states, _ = started_states(model, params, records, channels, option, modes, states)
+    states, _ = started_states(model, params, records, channels, option, modes, states,
+                               held_out)
     return tuple(
         simulate_record(model, params, r, states[r.name]) if r.name in states
         else simulate_readings(model, params, r.input, dt=r.dt)
