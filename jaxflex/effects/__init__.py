@@ -58,7 +58,7 @@ def register_effect(cls: type[AbstractEffect]) -> type[AbstractEffect]:
     return EFFECTS.register(cls)
 
 
-def get_effect(name: str, **kwargs) -> AbstractEffect:
+def get_effect(name: str, /, **kwargs) -> AbstractEffect:
     """An effect by name, built with ``kwargs`` (e.g. ``get_effect("payload", rotary=True)``);
     ``KEY:CHANNEL`` names a channel effect's channel (``get_effect("sensor_gain:root_strain")``).
     An effect that exists only as declared takes its rig-file table
