@@ -238,6 +238,11 @@ def _effects(top: _Table) -> tuple[AbstractEffect, ...]:
             raise ArmError(f"{at}: {name}: {err}") from None
         except ValueError as err:
             raise ArmError(f"{at}: {err}") from None
+        taken = {p.name for e in effects[:-1] for p in e.parameters} | set(_BASE)
+        for spec in effects[-1].parameters:
+            if spec.name in taken:
+                raise ArmError(f"{at}.{spec.name}: parameter name taken by a base parameter or "
+                               "an earlier effect; name it otherwise")
     return tuple(effects)
 
 

@@ -178,6 +178,10 @@ def test_a_rig_file_declares_it_and_writes_it_back(tmp_path):
      r"effects\[0\]\.expression: the term a\*theta\*u mixes the state"),
     ('a = { reference = 0.0, lower = -1.0, upper = 1.0 }',
      r"effects\[0\]\.expression: missing"),
+    ('expression = "a*theta"\na = { reference = 0.0, lower = -1.0, upper = 1.0 }\n\n'
+     '[[effects]]\ntype = "torque"\nname = "other"\nexpression = "a*omega"\n'
+     'a = { reference = 0.0, lower = -1.0, upper = 1.0 }',
+     r"effects\[1\]\.a: parameter name taken"),
 ])
 def test_bad_declarations_are_named_in_one_line(tmp_path, table, message):
     path = rig(tmp_path, f'[[effects]]\ntype = "torque"\n{table}\n')

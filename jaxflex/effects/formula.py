@@ -163,8 +163,10 @@ class FormulaTorque(AbstractEffect):
         settings = dict(settings)
         name = settings.pop("name", "torque")
         if "expression" not in settings:
-            raise FormulaError("expression: missing (the torque's formula, e.g. "
-                               "\"a*sin(8*theta)\")")
+            raise FormulaError("expression: missing (a formula torque is declared with its "
+                               "formula and parameters, e.g. in a rig file's [[effects]] table: "
+                               "type = \"torque\", expression = \"a*sin(8*theta)\", a = { "
+                               "reference = 0.0, lower = -0.05, upper = 0.05 })")
         expression = settings.pop("expression")
         return cls(expression, settings, name=name)
 
