@@ -206,6 +206,8 @@ def test_bad_declarations_are_named_in_one_line(tmp_path, table, message):
 def test_python_declarations_check_the_same():
     with pytest.raises(FormulaError, match="unknown symbol 'x'"):
         FormulaTorque("a*x", {"a": (0.0, -1.0, 1.0)})
+    with pytest.raises(FormulaError, match=r"^name: 'gravity' is a library effect's name"):
+        FormulaTorque("a*cos(theta)", {"a": (0.0, -1.0, 1.0)}, name="gravity")
     with pytest.raises(FormulaError, match=r"^name: 'two words'"):
         FormulaTorque("a*theta", {"a": (0.0, -1.0, 1.0)}, name="two words")
     # a formula not vanishing at zero parameters has no null: no score test at zero

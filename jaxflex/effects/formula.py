@@ -124,6 +124,11 @@ class FormulaTorque(AbstractEffect):
         if not (isinstance(self.name, str) and self.name.isidentifier()):
             raise FormulaError(f"name: {self.name!r} must be an identifier (the effect's name "
                                "in fits and reports)")
+        from jaxflex.effects import EFFECTS  # (the registry imports this module)
+
+        if self.name != type(self).name and self.name.partition(":")[0] in EFFECTS:
+            raise FormulaError(f"name: {self.name!r} is a library effect's name; name the "
+                               "formula otherwise")
         if not isinstance(self.expression, str) or not self.expression.strip():
             raise FormulaError(f"expression: expected a formula (text), got "
                                f"{self.expression!r}")
