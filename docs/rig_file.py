@@ -68,7 +68,9 @@ def example(drive: str = "voltage") -> dict[str, Any]:
                                    "log_scale": spec.log_scale} for spec in BASE_PARAMETERS},
         "drive": {"type": drive, **EXAMPLE_DRIVES[drive]},
         "sensors": [{"type": kind, **keys} for kind, keys in EXAMPLE_SENSORS.items()],
-        "effects": [{"name": "payload"}],
+        "effects": [{"name": "payload"},
+                    {"type": "torque", "name": "cogging", "expression": "a*sin(8*theta)",
+                     "a": {"reference": 0.0, "lower": -0.05, "upper": 0.05}}],
     }
 
 
@@ -76,7 +78,9 @@ NOTES: dict[str, tuple[str, str]] = {
     "name": ("", "the rig's name, shown in reports and stored in fits"),
     "description": ("", "one line on the rig"),
     "effects": ("", "effects added to the base model: names, or `[[effects]]` tables of "
-                    "`name` and the effect's settings ([effects](effects.md))"),
+                    "`name` and the effect's settings, or of `type = \"torque\"`, a `name`, an "
+                    "`expression` and its parameters' bounds: a torque written as a formula "
+                    "([effects](effects.md#a-torque-written-as-a-formula))"),
     "link": ("", "the flexible link, from the clamp to the tip"),
     "link.length": ("m", "clamp to tip"),
     "link.width": ("m", "across the plane of motion"),

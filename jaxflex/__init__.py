@@ -96,7 +96,14 @@ if TYPE_CHECKING:  # what static tools see; at run time __getattr__ imports each
         TorqueDrive,
         VoltageDrive,
     )
-    from jaxflex.effects import EFFECTS, AbstractEffect, get_effect, library, register_effect
+    from jaxflex.effects import (
+        EFFECTS,
+        AbstractEffect,
+        FormulaTorque,
+        get_effect,
+        library,
+        register_effect,
+    )
     from jaxflex.frequency_response import frf, mode_shapes, natural_frequencies
     from jaxflex.identification import Fit, identify, load_fit
     from jaxflex.intervals import uncertainty
@@ -136,7 +143,9 @@ _SOURCES: dict[str, tuple[str, ...]] = {
     "jaxflex.drives": (
         "DRIVES", "CommandDrive", "CurrentDrive", "AbstractDrive", "TorqueDrive", "VoltageDrive",
     ),
-    "jaxflex.effects": ("EFFECTS", "AbstractEffect", "get_effect", "library", "register_effect"),
+    "jaxflex.effects": (
+        "EFFECTS", "AbstractEffect", "FormulaTorque", "get_effect", "library", "register_effect",
+    ),
     "jaxflex.frequency_response": ("frf", "mode_shapes", "natural_frequencies"),
     "jaxflex.identification": ("Fit", "identify", "load_fit"),
     "jaxflex.intervals": ("uncertainty",),
@@ -190,6 +199,7 @@ __all__ = [
     "Diagnosis",
     "DiscoveryReport",
     "FRFSettings",
+    "FormulaTorque",
     "Fit",
     "Model",
     "Outputs",

@@ -40,6 +40,12 @@ line::
 
     [[effects]]               # optional: effects added to the base model, by name, with
     name = "payload"          # their settings (or effects = ["payload", ...])
+    [[effects]]               # a torque at the hub written as a formula (jaxflex.effects.formula)
+    type = "torque"
+    name = "cogging"          # its name in fits and reports (default "torque")
+    expression = "a*sin(8*theta) + b*omega"
+    a = { reference = 0.0, lower = -0.05, upper = 0.05 }   # N m
+    b = { reference = 0.0, lower = -0.01, upper = 0.01, unit = "N m s/rad" }
 
 An arm file describes one :class:`~jaxflex.model.Model`, the one rig description every command
 uses: :func:`load_arm` reads it (a path, or a packaged rig's name), :func:`arm_to_dict` and
@@ -73,9 +79,11 @@ from typing import Any
 from jaxflex._arguments import shown
 from jaxflex.drives import DRIVES, AbstractDrive, CommandDrive
 from jaxflex.effects import (
+    EFFECTS,
     AbstractEffect,
     ChannelEffect,
     DriveGain,
+    FormulaError,
     SensorGain,
     SensorOffset,
     get_effect,
@@ -215,15 +223,26 @@ def _effects(top: _Table) -> tuple[AbstractEffect, ...]:
             settings = dict(entry)
         else:
             raise ArmError(f"{at}: expected an effect name or table, got {_kind(entry)}")
-        name = settings.pop("name", None)
+        key = "type" if "type" in settings else "name"  # a declared effect: type and name
+        name = settings.pop(key, None)
         if not isinstance(name, str):
-            raise ArmError(f"{at}.name: expected the effect's name (a string), got {name!r}")
+            raise ArmError(f"{at}.{key}: expected the effect's {key} (a string), got {name!r}")
+        declared = name in EFFECTS and EFFECTS.lookup(name).needs_declaration
+        if key == "type" and name in EFFECTS and not declared:
+            raise ArmError(f"{at}.type: {name!r} is a library effect: write name = {name!r}")
         try:
             effects.append(get_effect(name, **settings))
+        except FormulaError as err:
+            raise ArmError(f"{at}.{err}") from None
         except TypeError as err:
             raise ArmError(f"{at}: {name}: {err}") from None
         except ValueError as err:
             raise ArmError(f"{at}: {err}") from None
+        taken = {p.name for e in effects[:-1] for p in e.parameters} | set(_BASE)
+        for spec in effects[-1].parameters:
+            if spec.name in taken:
+                raise ArmError(f"{at}.{spec.name}: parameter name taken by a base parameter or "
+                               "an earlier effect; name it otherwise")
     return tuple(effects)
 
 
@@ -289,6 +308,8 @@ def _sensor_dict(sensor: AbstractSensor) -> dict[str, Any]:
 
 
 def _effect_dict(effect: AbstractEffect) -> dict[str, Any]:
+    if effect.needs_declaration:  # its type, then its declaration (name, formula, parameters)
+        return {"type": type(effect).name} | effect.settings()  # type: ignore[attr-defined]
     own = ("channel",) if isinstance(effect, ChannelEffect) else ()
     return {"name": effect.name} | {  # None: a setting left at its default (TOML has no null)
         f.name: getattr(effect, f.name) for f in dataclasses.fields(effect)

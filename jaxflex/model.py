@@ -308,16 +308,23 @@ class Model(eqx.Module):
         return jnp.concatenate(parts) if parts else jnp.zeros((0,))
 
     def input_torque(self, params: Params, torque: Array, h: float) -> Array:
-        """The drive's torque from the logged input after every input effect (delay, lag).
+        """The drive's torque from the logged input after every input effect (delay, lag), plus
+        each effect's torque from the input signal itself (a formula in ``u`` and ``t``).
 
         ``torque`` is the input signal on a grid of step ``h`` (N m for a torque drive).
         """
-        torque = self.drive.torque(torque)
+        signal, torque = torque, self.drive.torque(torque)
         for effect in self.effects:
             with blamed(effect, "input_torque"):
                 changed = effect.input_torque(params, torque, h)
             torque = returned(effect, "input_torque", changed, jnp.shape(torque),
                               "the torque at each instant", broadcast=False)
+        for effect in self.effects:
+            with blamed(effect, "signal_torque"):
+                extra = effect.signal_torque(params, signal, h)
+            if extra is not None:
+                torque = torque + returned(effect, "signal_torque", extra, jnp.shape(torque),
+                                           "the torque at each instant", broadcast=False)
         return torque
 
     def readings(self, params: Params, readings: Mapping[str, Array]) -> dict[str, Array]:

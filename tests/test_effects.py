@@ -50,11 +50,13 @@ NAMES = (
     "sensor_gain",
     "sensor_offset",
     "stribeck",
+    "torque",
     "torque_offset",
 )
 CHANNEL_EFFECTS = tuple(f"{k}:{c}" for k in ("sensor_gain", "sensor_offset")
                         for c in ("joint_angle", "tip_acceleration", "root_strain"))
-LIBRARY = NAMES[:6] + CHANNEL_EFFECTS + NAMES[8:]
+LIBRARY = NAMES[:6] + CHANNEL_EFFECTS + tuple(n for n in NAMES[8:] if n != "torque")
+# (a formula torque exists only as declared: the library holds no default one)
 TESTBED = Model().testbed
 DT = TESTBED.dt
 

@@ -96,6 +96,10 @@ LM_RTOL = 1e-8
 """A refit stops when an accepted step lowers the cost by less than this fraction (or on
 optimistix's test with this ``rtol`` and ``atol``)."""
 
+ZERO_SCALE = 1e-9
+"""A start below this share of its box counts as zero: the fit scales the parameter by its box
+(scaled by a round-off value, a two-sided parameter could not move)."""
+
 
 ProfileRequest = tuple[np.ndarray, Sequence[int], int, Mapping[str, float]]
 
@@ -399,10 +403,11 @@ class Engine:
         cols = np.flatnonzero(mask)
         x = np.where(mask, x0, u.null)
         x[cols] = np.clip(x[cols], u.space.lower[cols], u.space.upper[cols])
-        # coordinates of order one; a two-sided parameter at zero (an offset) scales by its box
+        # coordinates of order one; a two-sided parameter at zero (an offset) scales by its box,
+        # also at a zero rounded off in the unit box (-0.05 + 0.5·0.1 is -7e-18, not 0)
         lower, upper = u.space.lower[cols], u.space.upper[cols]
         scale = np.maximum(np.abs(x[cols]), lower)
-        scale = np.where(scale > 0, scale, upper - lower)
+        scale = np.where(scale > ZERO_SCALE * (upper - lower), scale, upper - lower)
         size = min(-(-len(cols) // SOLVE_COLUMNS) * SOLVE_COLUMNS, len(x))
         held = np.flatnonzero(~mask)[: size - len(cols)]
         index = np.concatenate([cols, held])

@@ -63,6 +63,9 @@ class Variant(AbstractEffect):
     def input_torque(self, params: Params, torque: Array, h: float) -> Array:
         return self.inner.input_torque(self._own(params), torque, h)
 
+    def signal_torque(self, params: Params, signal: Array, h: float) -> Array | None:
+        return self.inner.signal_torque(self._own(params), signal, h)
+
     def readings(
         self, params: Params, readings: Mapping[str, Float[Array, "*batch n"]]
     ) -> dict[str, Float[Array, "*batch n"]]:

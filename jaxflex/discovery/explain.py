@@ -104,7 +104,7 @@ def _inner(effect: AbstractEffect) -> AbstractEffect:
 def _hooks(effect: AbstractEffect) -> set[str]:
     """Which model hooks an effect overrides."""
     inner = _inner(effect)
-    return {h for h in ("structure", "friction", "loads", "input_torque")
+    return {h for h in ("structure", "friction", "loads", "input_torque", "signal_torque")
             if getattr(type(inner), h) is not getattr(AbstractEffect, h)}
 
 

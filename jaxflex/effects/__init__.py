@@ -17,6 +17,7 @@ from jaxflex.effects._base import AbstractEffect, EffectError, Structure, joint_
 from jaxflex.effects._channel import CALIBRATED_CHANNELS, ChannelEffect
 from jaxflex.effects.delay import Delay
 from jaxflex.effects.drive_gain import DriveGain
+from jaxflex.effects.formula import FormulaError, FormulaTorque
 from jaxflex.effects.gravity import Gravity
 from jaxflex.effects.motor_lag import MotorLag
 from jaxflex.effects.payload import Payload
@@ -57,13 +58,17 @@ def register_effect(cls: type[AbstractEffect]) -> type[AbstractEffect]:
     return EFFECTS.register(cls)
 
 
-def get_effect(name: str, **kwargs) -> AbstractEffect:
+def get_effect(name: str, /, **kwargs) -> AbstractEffect:
     """An effect by name, built with ``kwargs`` (e.g. ``get_effect("payload", rotary=True)``);
-    ``KEY:CHANNEL`` names a channel effect's channel (``get_effect("sensor_gain:root_strain")``)."""
+    ``KEY:CHANNEL`` names a channel effect's channel (``get_effect("sensor_gain:root_strain")``).
+    An effect that exists only as declared takes its rig-file table
+    (``get_effect("torque", expression="a*theta", a={...})``)."""
     key, sep, channel = name.partition(":")
     if key not in EFFECTS:
         raise ValueError(f"unknown effect {name!r}; known effects: {sorted(EFFECTS)}")
     cls = EFFECTS.lookup(key)
+    if cls.needs_declaration:  # built from its declaration: a formula and its parameters
+        return cls.from_settings(kwargs)  # type: ignore[attr-defined]
     if sep:
         if not issubclass(cls, ChannelEffect):
             raise ValueError(f"effect {key!r} acts on no channel: name it {key!r}, not {name!r}")
@@ -74,10 +79,12 @@ def get_effect(name: str, **kwargs) -> AbstractEffect:
 
 def library() -> tuple[AbstractEffect, ...]:
     """One default instance of every effect in the library (in name order); a channel effect
-    once for each of :data:`~jaxflex.effects._channel.CALIBRATED_CHANNELS`."""
+    once for each of :data:`~jaxflex.effects._channel.CALIBRATED_CHANNELS`; none of an effect
+    that exists only as declared (a formula torque)."""
     return tuple(
         effect
         for _, cls in sorted(EFFECTS.items())
+        if not cls.needs_declaration
         for effect in (
             [cls(channel=c) for c in CALIBRATED_CHANNELS]
             if issubclass(cls, ChannelEffect)
@@ -94,6 +101,8 @@ __all__ = [
     "DriveGain",
     "AbstractEffect",
     "EffectError",
+    "FormulaError",
+    "FormulaTorque",
     "Gravity",
     "MotorLag",
     "Payload",

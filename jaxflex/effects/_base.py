@@ -11,6 +11,8 @@ An effect is a small :class:`equinox.Module` that declares its parameters (with 
   ``Σ_i a_i(θ, θ') · f_i`` with constant shapes ``f_i`` (gravity in a tilted plane);
 * :meth:`~AbstractEffect.input_torque` — transform the applied torque signal (a delay, a motor
   lag);
+* :meth:`~AbstractEffect.signal_torque` — add a torque computed from the drive's input signal
+  and time (a formula's terms in ``u`` and ``t``, :mod:`jaxflex.effects.formula`);
 * :meth:`~AbstractEffect.readings` — act on the named output channels after the solve (a
   sensor's gain or offset): the motion is untouched, only what is read changes.
 
@@ -60,6 +62,9 @@ class AbstractEffect(eqx.Module):
     parameters: ClassVar[tuple[ParameterSpec, ...]] = ()
     description: ClassVar[str] = ""
     signature: ClassVar[str] = ""
+    needs_declaration: ClassVar[bool] = False
+    """True for an effect that exists only as declared (a formula): the library holds no
+    default instance of it."""
 
     def structure(self, structure: Structure, params: Params) -> Structure:
         """Modify mass or stiffness; the default leaves them unchanged."""
@@ -81,6 +86,11 @@ class AbstractEffect(eqx.Module):
     def input_torque(self, params: Params, torque: Float[Array, " m"], h: float) -> Array:
         """Torque reaching the joint from the applied torque on a grid of step ``h``."""
         return torque
+
+    def signal_torque(self, params: Params, signal: Float[Array, " m"], h: float) -> Array | None:
+        """Torque added at the joint from the drive's input ``signal`` (in the drive's unit, on
+        a grid of step ``h`` from the record's start); None (the default) adds nothing."""
+        return None
 
     def readings(
         self, params: Params, readings: Mapping[str, Float[Array, "*batch n"]]
