@@ -183,18 +183,6 @@ def true_parameters(
     return values
 
 
-__all__ = [
-    "ACCELEROMETER_SIGMA",
-    "DEFAULT_INPUTS",
-    "ENCODER_COUNTS",
-    "ENCODER_STEP",
-    "TESTBED_NOISE",
-    "add_noise",
-    "make_records",
-    "quantise_angle",
-    "simulated_record",
-    "true_parameters",
-]
 
 
 def rig_amplitude(name: str, model: Model, params: Mapping[str, ArrayLike]) -> float:
@@ -233,3 +221,19 @@ def warn_if_held(
         stacklevel=2,
     )
     return True
+
+
+__all__ = [
+    "ACCELEROMETER_SIGMA",
+    "DEFAULT_INPUTS",
+    "ENCODER_COUNTS",
+    "ENCODER_STEP",
+    "TESTBED_NOISE",
+    "add_noise",
+    "make_records",
+    "quantise_angle",
+    "rig_amplitude",
+    "simulated_record",
+    "true_parameters",
+    "warn_if_held",
+]

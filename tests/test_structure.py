@@ -31,8 +31,8 @@ LAYERS: tuple[tuple[str, tuple[str, ...]], ...] = (
     ("data", ("record_files", "data", "preprocess", "rest", "synthetic", "datasets", "arm",
               "rigs", "diagnosis")),
     ("estimation", ("initial", "objective", "intervals", "refine", "fit", "rigid", "kalman",
-                    "prediction_error", "identification", "comparison", "measured", "design",
-                    "prediction_report")),
+                    "prediction_error", "identification", "comparison_table", "comparison",
+                    "measured", "design", "prediction_report")),
     ("analysis", ("discovery", "study")),
     ("interface", ("plots", "demo", "cli", "distributed", "jaxflex", "__main__")),
 )
