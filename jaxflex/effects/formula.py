@@ -356,3 +356,6 @@ def _without_piecewise(expr: sympy.Expr) -> sympy.Expr:
         return result
 
     return expr.replace(lambda e: isinstance(e, sympy.Piecewise), lambda e: nested(*e.args))
+
+
+__all__ = ["FUNCTIONS", "RESERVED", "VARIABLES", "FormulaError", "FormulaTorque", "parse_formula"]
