@@ -26,9 +26,12 @@ def radau_reference(model: Model, params, torque, dt, rtol=1e-9, atol=1e-11):
     return np.array([q[:, 0], model.testbed.length * acc[:, 0] + acc @ tip, velocity[:, 0]])
 
 
-def radau_states(model: Model, params, torque, dt, rtol=1e-9, atol=1e-11):
+def radau_states(model: Model, params, torque, dt, rtol=1e-9, atol=1e-11, hub_torque=None):
     """The physical state at the samples (right-hand limits): ``q``, ``q'`` and ``q''``, each
-    ``(samples, 1 + 2n)`` over ``q = [θ, w_1, w'_1, …, w_n, w'_n]`` (node 0 clamped)."""
+    ``(samples, 1 + 2n)`` over ``q = [θ, w_1, w'_1, …, w_n, w'_n]`` (node 0 clamped).
+
+    ``hub_torque(θ, θ')``, where given, is a further torque on the hub, returned with its
+    slopes in ``θ`` and ``θ'`` (for the Jacobian)."""
     structure = model.structure(params)
     mass = np.asarray(structure.mass)
     stiffness = np.asarray(structure.stiffness)
@@ -61,16 +64,21 @@ def radau_states(model: Model, params, torque, dt, rtol=1e-9, atol=1e-11):
         return (b_v + (tau_c + fade) / omega_s * (1.0 - np.tanh(v / omega_s) ** 2)
                 + fade_slope * np.tanh(v / omega_s))
 
+    def added(x):
+        return (0.0, 0.0, 0.0) if hub_torque is None else hub_torque(x[0], x[n])
+
     def acceleration(x, tau):
         q, v = x[:n], x[n:]
-        return me * (tau - friction(v[0])) - md @ v - mk @ q - tilt * math.cos(q[0]) * moment
+        return (me * (tau + added(x)[0] - friction(v[0])) - md @ v - mk @ q
+                - tilt * math.cos(q[0]) * moment)
 
     def jacobian(x):
-        slope = friction_slope(x[n])
+        _, by_angle, by_velocity = added(x)
+        slope = friction_slope(x[n]) - by_velocity
         lower_right = -md.copy()
         lower_right[:, 0] -= me * slope
         lower_left = -mk.copy()
-        lower_left[:, 0] += tilt * math.sin(x[0]) * moment
+        lower_left[:, 0] += tilt * math.sin(x[0]) * moment + me * by_angle
         return np.block([[np.zeros((n, n)), np.eye(n)], [lower_left, lower_right]])
 
     # Integrate each run of equal torque samples in one go (restarting where the torque steps).
