@@ -21,7 +21,7 @@ from jaxflex.noise import NoiseLevel
 from jaxflex.plots.missing_torque import plot_missing_torque
 from jaxflex.synthetic import ACCELEROMETER_SIGMA, ENCODER_STEP, quantise_angle
 from jaxflex.testbed import Testbed
-from jaxflex.torque_map import MAP_RULES, term_function, torque_map
+from jaxflex.torque_regression import MAP_RULES, term_function, torque_map
 
 DT, N = 2e-3, 1000
 NOISE = {"joint_angle": NoiseLevel.quantised(ENCODER_STEP),

@@ -9,7 +9,7 @@ from matplotlib.figure import Figure
 
 from jaxflex.missing_torque import MissingTorque
 from jaxflex.plots._style import MEASURED, MODEL, RESIDUAL, new_figure
-from jaxflex.torque_map import TorqueMap
+from jaxflex.torque_regression import TorqueMap
 
 MISSING_TORQUE_FIGSIZE = (9.0, 7.0)
 """Default size (inches) of the missing-torque figure."""
