@@ -14,7 +14,8 @@ in those variables, so the map it finds is one a rig file's formula torque can t
    one sample per correlation time of the residuals of a least-squares fit on every term
    (:func:`correlation_time`: the criterion counts independent samples), the lasso
    path of the standardised, centred columns is cut by the Bayesian information criterion
-   (scikit-learn's ``LassoLarsIC``, the noise variance the mean of ``d̂``'s own variance); a
+   (scikit-learn's ``LassoLarsIC``; the noise variance the mean of ``d̂``'s own variance, or
+   that of the residuals of the fit on every term where larger); a
    term's *inclusion probability* is the fraction of subsamples that keep it;
 3. the terms kept in at least :data:`STABLE` of them are refitted by ordinary least squares
    (with a constant), each coefficient's 95 % interval the percentiles over ``B`` moving-block
@@ -29,6 +30,7 @@ state and input, partly one, or none (then it points at a sensor, not the dynami
 
 from __future__ import annotations
 
+import warnings
 from collections.abc import Sequence
 from typing import NamedTuple
 
@@ -211,11 +213,14 @@ def correlation_time(residual: np.ndarray) -> float:
 def _lasso_bic(x: np.ndarray, y: np.ndarray, noise_variance: float) -> np.ndarray:
     """Which standardised columns the BIC-cut lasso path keeps, the noise variance the
     smoother's own (the residuals of a regression on correlated samples would understate it)."""
+    from sklearn.exceptions import ConvergenceWarning
     from sklearn.linear_model import LassoLarsIC
     from sklearn.preprocessing import StandardScaler
 
     z = StandardScaler().fit_transform(x)
-    fit = LassoLarsIC(criterion="bic", noise_variance=noise_variance).fit(z, y - y.mean())
+    with warnings.catch_warnings():  # near-collinear terms: LARS drops one and says so
+        warnings.simplefilter("ignore", ConvergenceWarning)
+        fit = LassoLarsIC(criterion="bic", noise_variance=noise_variance).fit(z, y - y.mean())
     return np.abs(fit.coef_) > 0
 
 
@@ -246,11 +251,13 @@ def torque_map(estimate: MissingTorque, *, terms: Sequence[str] | None = None,
     noise_ratio = float(np.sqrt(np.mean(y**2)) / np.sqrt(np.mean(pick["std"] ** 2)))
     full = columns[:, varying]
     residual = y - np.column_stack([np.ones(n), full]) @ _ols(full, y) if n > len(varying) + 1 \
-        else y
+        else y - y.mean()
     spacing = max(1, round(correlation_time(residual)))
+    # the noise the criterion weighs a term against: the smoother's own, or what the whole
+    # library leaves unexplained where that is more (a torque of no term: a sensor's)
+    variance = max(float(np.mean(pick["std"] ** 2)), float(np.var(residual)))
     rng = np.random.default_rng(seed)
     resamples = [_blocks(n, rng) for _ in range(bootstrap)]
-    variance = float(np.mean(pick["std"] ** 2))
     counts = np.zeros(len(terms))
     for _ in range(bootstrap):
         idx = _half_blocks(n, rng)[::spacing]
