@@ -188,7 +188,8 @@ def estimate_missing_torque(
     module doc). ``channels`` default to the fitted ones, their noise to
     :func:`jaxflex.kalman.measurement_noise` (``noise`` where given); ``intensity`` fixes the
     random walk's (else fitted by maximum likelihood in :data:`INTENSITY_RANGE`); ``prior`` is
-    the torque's standard deviation at the start (N m; default the largest logged input)."""
+    the torque's standard deviation at the start (N m; default the largest hub torque the logged
+    input makes)."""
     check_records(records, "estimate_missing_torque")
     records = list(record_tuple(records))
     channels = fitted_channels(records, model) if channels is None else check_channels(
@@ -201,8 +202,9 @@ def estimate_missing_torque(
             isinstance(intensity, (int, float)) and lower <= intensity <= upper):
         raise ValueError(f"intensity={intensity!r}: expected a random-walk intensity from "
                          f"{lower:g} to {upper:g}")
-    if prior is None:
-        prior = max(max(float(np.max(np.abs(r.input))) for r in records), 1e-6)
+    if prior is None:  # the largest hub torque the input makes (through the rig's drive)
+        prior = max(max(float(jnp.max(jnp.abs(step_and_output(model, values, r.dt, channels)[3](
+            jnp.asarray(r.input))))) for r in records), 1e-6)
     elif not (isinstance(prior, (int, float)) and math.isfinite(prior) and prior > 0):
         raise ValueError(f"prior={prior!r}: expected a positive torque (N m)")
     levels = measurement_noise(records, model, channels, noise)

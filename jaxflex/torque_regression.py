@@ -160,6 +160,14 @@ class TorqueMap(NamedTuple):
     words: str
     samples: int
 
+    def to_dict(self) -> dict:
+        """The map as JSON-ready values (intervals as ``[low, high]``)."""
+        return {"expression": self.expression, "verdict": self.verdict, "words": self.words,
+                "explained": self.explained, "noise_ratio": self.noise_ratio,
+                "samples": self.samples, "coefficients": dict(self.coefficients),
+                "intervals": {k: list(v) for k, v in self.intervals.items()},
+                "inclusion": dict(self.inclusion), "terms": list(self.terms)}
+
     def evaluate(self, theta, omega, u, t, only: set[str] | None = None) -> np.ndarray:
         """The map at the samples; with ``only``, the selected terms that use no other
         variable than those (and the constant)."""

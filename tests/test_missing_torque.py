@@ -7,6 +7,7 @@ samples at once on the linear arm."""
 from __future__ import annotations
 
 import functools
+import json
 
 import numpy as np
 import pytest
@@ -103,6 +104,7 @@ def test_cogging_is_estimated_and_its_shape_found():
     assert max(found.coefficients, key=lambda s: abs(found.coefficients[s])) == term
     assert found.verdict == "explained"
     [r] = estimate.records
+    assert json.loads(json.dumps(found.to_dict()))["intervals"][term] == list(found.intervals[term])
     value = term_function(found.expression)(r.theta, r.omega, r.u, r.time)
     assert np.allclose(value, found.evaluate(r.theta, r.omega, r.u, r.time), atol=1e-3 * a)
 
