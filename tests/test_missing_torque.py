@@ -265,3 +265,30 @@ def test_a_torque_of_no_state_or_input_points_at_a_sensor():
         found = torque_map(changed, bootstrap=10)
         assert found.verdict == verdict, (found.explained, found.expression)
         assert found.words == MAP_RULES[verdict][1]
+
+
+def test_the_command_writes_the_map_and_the_figure(tmp_path, capsys):
+    """``jaxflex torque-map`` on a cogging record and a fit at the true parameters of the model
+    without it: the map found is the cogging, in the JSON and on the screen; a second run
+    without --overwrite is refused in one line."""
+    from test_cli_validate import write_fit
+
+    from jaxflex.cli import main
+    from jaxflex.data import save_record
+
+    model, params = _model()
+    record, _ = _logged("cogging")
+    data = save_record(record, tmp_path / "cogging.csv")
+    fit = write_fit(tmp_path / "fit.json", params=params, record_names=("cogging",), model=model)
+    out = tmp_path / "map"
+    args = ["torque-map", str(data), "--fit", str(fit), "--out", str(out), "--bootstrap", "10",
+            "--quiet"]
+    assert main(args) == 0
+    printed = capsys.readouterr().out
+    found = json.loads((out / "torque_map.json").read_text())["map"]
+    a, k = COGGING
+    assert found["coefficients"][f"sin({k}*theta)"] == pytest.approx(a, rel=0.1)
+    assert found["expression"] in printed and MAP_RULES["explained"][1] in printed
+    assert (out / "missing_torque.png").stat().st_size > 0
+    assert main(args) == 2
+    assert "torque_map.json" in capsys.readouterr().err

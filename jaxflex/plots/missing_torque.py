@@ -55,7 +55,8 @@ def plot_missing_torque(estimate: MissingTorque, torque_map: TorqueMap | None = 
                                         np.zeros_like(grid), only={key})
             ax.plot(grid, curve, color=RESIDUAL, lw=1.2)
     ax_w.scatter([], [], s=9, color=MEASURED, label="d̂ at the samples")
-    ax_w.plot([], [], color=RESIDUAL, lw=1.2, label="map's terms in that variable")
+    if torque_map is not None and torque_map.selected:
+        ax_w.plot([], [], color=RESIDUAL, lw=1.2, label="map's terms in that variable")
     title = "missing hub torque"
     if torque_map is not None:
         title += f": {torque_map.words}"
