@@ -93,7 +93,8 @@ def default_terms(estimate: MissingTorque, harmonics: int = HARMONICS) -> tuple[
     """The candidate terms for ``estimate``'s records (see the module constants): ``1``,
     ``theta``, ``sin/cos(k*theta)`` for ``k = 1..harmonics``, ``omega``, the smoothed sign,
     ``abs(omega)*omega``, Stribeck-like decays, ``u``, dead zones, saturations and ``t``.
-    Thresholds scale with the records' largest ``|u|`` and ``|omega|``."""
+    Thresholds scale with the records' largest ``|u|`` and ``|omega|``. The input's rate is
+    not a candidate: a formula in ``theta, omega, u, t`` cannot state it."""
     if isinstance(harmonics, bool) or not isinstance(harmonics, int) or harmonics < 0:
         raise ValueError(f"harmonics={harmonics!r}: expected a non-negative int")
     u_max = max(float(np.max(np.abs(r.u))) for r in estimate.records)
