@@ -189,7 +189,7 @@ def estimate_missing_torque(
     :func:`jaxflex.kalman.measurement_noise` (``noise`` where given); ``intensity`` fixes the
     random walk's (else fitted by maximum likelihood in :data:`INTENSITY_RANGE`); ``prior`` is
     the torque's standard deviation at the start (N m; default the largest hub torque the logged
-    input makes)."""
+    input makes; integrated, its rate's is ``prior/(100·dt)``)."""
     check_records(records, "estimate_missing_torque")
     records = list(record_tuple(records))
     channels = fitted_channels(records, model) if channels is None else check_channels(
