@@ -109,6 +109,7 @@ if TYPE_CHECKING:  # what static tools see; at run time __getattr__ imports each
     from jaxflex.intervals import uncertainty
     from jaxflex.measured import fit_noise, load_records, validate
     from jaxflex.metrics import nrmse
+    from jaxflex.missing_torque import MissingTorque, estimate_missing_torque
     from jaxflex.model import Model
     from jaxflex.objective import build_objective, fitted_channels
     from jaxflex.parameters import (
@@ -124,6 +125,7 @@ if TYPE_CHECKING:  # what static tools see; at run time __getattr__ imports each
     from jaxflex.simulation import Outputs, simulate, simulate_batch
     from jaxflex.synthetic import ACCELEROMETER_SIGMA, ENCODER_STEP, make_records
     from jaxflex.testbed import Testbed
+    from jaxflex.torque_regression import TorqueMap, torque_map
 
 _SOURCES: dict[str, tuple[str, ...]] = {
     "jaxflex.arm": ("ArmError", "arm_to_toml", "load_arm"),
@@ -151,6 +153,7 @@ _SOURCES: dict[str, tuple[str, ...]] = {
     "jaxflex.intervals": ("uncertainty",),
     "jaxflex.measured": ("fit_noise", "load_records", "validate"),
     "jaxflex.metrics": ("nrmse",),
+    "jaxflex.missing_torque": ("MissingTorque", "estimate_missing_torque"),
     "jaxflex.model": ("Model",),
     "jaxflex.objective": ("build_objective", "fitted_channels"),
     "jaxflex.parameters": (
@@ -163,6 +166,7 @@ _SOURCES: dict[str, tuple[str, ...]] = {
     "jaxflex.simulation": ("Outputs", "simulate", "simulate_batch"),
     "jaxflex.synthetic": ("ACCELEROMETER_SIGMA", "ENCODER_STEP", "make_records"),
     "jaxflex.testbed": ("Testbed",),
+    "jaxflex.torque_regression": ("TorqueMap", "torque_map"),
 }
 """Where each top-level name is defined (the imports above, for the interpreter)."""
 _MODULE_OF = {name: (module, name) for module, names in _SOURCES.items() for name in names}
@@ -201,6 +205,7 @@ __all__ = [
     "FRFSettings",
     "FormulaTorque",
     "Fit",
+    "MissingTorque",
     "Model",
     "Outputs",
     "ParameterSpace",
@@ -209,6 +214,7 @@ __all__ = [
     "RigidEstimate",
     "Testbed",
     "TorqueDrive",
+    "TorqueMap",
     "VoltageDrive",
     "add_effect",
     "arm_to_toml",
@@ -221,6 +227,7 @@ __all__ = [
     "design_input",
     "diagnose",
     "discover",
+    "estimate_missing_torque",
     "estimate_rigid",
     "explain",
     "fit_and_validate",
@@ -254,6 +261,7 @@ __all__ = [
     "score_tests",
     "simulate",
     "simulate_batch",
+    "torque_map",
     "uncertainty",
     "validate",
     "warm_start",

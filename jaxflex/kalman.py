@@ -82,7 +82,7 @@ def check_per_sample(model: Model, params: Mapping[str, ArrayLike],
                 )
 
 
-def _step_and_output(model: Model, params: Params, dt: float, channels: Sequence[str]):
+def step_and_output(model: Model, params: Params, dt: float, channels: Sequence[str]):
     """The sampled dynamics on the flat state: ``step(x, taus)``, ``output(x, tau)`` (the fitted
     channels' readings), the start ``x_0`` and ``fine_torque``."""
     dynamics = model_dynamics(model, params, dt)
@@ -98,10 +98,44 @@ def _step_and_output(model: Model, params: Params, dt: float, channels: Sequence
     return step, output, x0, dynamics.fine_torque
 
 
-def _value_and_jacobian(fn, x: Array) -> tuple[Array, Array]:
+def value_and_jacobian(fn, x: Array) -> tuple[Array, Array]:
     """``fn(x)`` and its Jacobian (forward mode, one primal evaluation)."""
     value, linear = jax.linearize(fn, x)
     return value, jax.vmap(linear, out_axes=-1)(jnp.eye(x.shape[0], dtype=x.dtype))
+
+
+class Update(NamedTuple):
+    """One measurement update: the posterior state and covariance, ``ŷ``, the innovations,
+    their variances, the sample's negative log-likelihood, the linearised readings ``H`` and
+    the Cholesky factor of the innovations' covariance ``S``."""
+
+    x: Array
+    p_cov: Array
+    y_hat: Array
+    innovations: Array
+    variance: Array
+    nll: Scalar
+    h_rows: Array
+    chol: Array
+
+
+def measurement_update(x: Array, p_cov: Array, output, y: Array, present: Array,
+                       noise: Array) -> Update:
+    """One measurement update of the extended filter at the prior ``x, p_cov``: the readings
+    ``output(x)`` linearised, the channels ``present`` (1/0) weighted by their ``noise``
+    covariance, Joseph form."""
+    y_hat, h_rows = value_and_jacobian(output, x)
+    h_rows = h_rows * present[:, None]
+    e = jnp.where(present > 0, y - y_hat, 0.0)
+    s_cov = h_rows @ p_cov @ h_rows.T + noise
+    chol = jnp.linalg.cholesky(s_cov)
+    gain = jax.scipy.linalg.cho_solve((chol, True), h_rows @ p_cov).T
+    joseph = jnp.eye(x.shape[0]) - gain @ h_rows
+    p_post = joseph @ p_cov @ joseph.T + gain @ noise @ gain.T
+    white = jax.scipy.linalg.solve_triangular(chol, e, lower=True)
+    log_det = 2.0 * jnp.sum(jnp.log(jnp.diag(chol)) * present)
+    nll = 0.5 * (white @ white + log_det + jnp.sum(present) * math.log(2.0 * math.pi))
+    return Update(x + gain @ e, p_post, y_hat, e, jnp.diag(s_cov), nll, h_rows, chol)
 
 
 def filter_core(
@@ -119,35 +153,23 @@ def filter_core(
 
     ``present`` is 1 for each channel the record logs, 0 for one it lacks (no update from it).
     """
-    step, output, x0, fine_torque = _step_and_output(model, params, dt, channels)
+    step, output, x0, fine_torque = step_and_output(model, params, dt, channels)
     fine = fine_torque(torque)
     dim = x0.shape[0]
-    eye = jnp.eye(dim)
     noise = jnp.diag(jnp.where(present > 0, sigma_y**2, 1.0))
-    n_present = jnp.sum(present)
 
     def sample(carry, inputs):
         x, p_cov = carry
         taus, y = inputs
-        y_hat, h_rows = _value_and_jacobian(lambda x: output(x, taus[0]), x)
-        h_rows = h_rows * present[:, None]
-        e = jnp.where(present > 0, y - y_hat, 0.0)
-        s_cov = h_rows @ p_cov @ h_rows.T + noise
-        chol = jnp.linalg.cholesky(s_cov)
-        gain = jax.scipy.linalg.cho_solve((chol, True), h_rows @ p_cov).T
-        x_post = x + gain @ e
-        joseph = eye - gain @ h_rows
-        p_post = joseph @ p_cov @ joseph.T + gain @ noise @ gain.T
-        white = jax.scipy.linalg.solve_triangular(chol, e, lower=True)
-        log_det = 2.0 * jnp.sum(jnp.log(jnp.diag(chol)) * present)
-        nll = 0.5 * (white @ white + log_det + n_present * math.log(2.0 * math.pi))
+        x_post, p_post, y_hat, e, s_diag, nll, _, _ = measurement_update(
+            x, p_cov, lambda x: output(x, taus[0]), y, present, noise)
         # the step and its Jacobian in the state and in a torque added over the interval
-        x_next, jac = _value_and_jacobian(
+        x_next, jac = value_and_jacobian(
             lambda z: step(z[:dim], taus + z[dim]), jnp.concatenate([x_post, jnp.zeros(1)])
         )
         f_mat, g = jac[:, :dim], jac[:, dim]
         p_next = f_mat @ p_post @ f_mat.T + sigma_tau**2 * jnp.outer(g, g)
-        return (x_next, 0.5 * (p_next + p_next.T)), (y_hat, e, jnp.diag(s_cov), x_post, nll)
+        return (x_next, 0.5 * (p_next + p_next.T)), (y_hat, e, s_diag, x_post, nll)
 
     p0 = jnp.zeros((dim, dim))
     _, (y_hat, e, s_diag, states, nll) = jax.lax.scan(sample, (x0, p0), (fine, measured.T))
@@ -166,7 +188,7 @@ def predict_core(
     """``ŷ_{t|t−k}`` for each ``k`` of ``horizons`` (samples, increasing, each >= 1) from the
     filtered ``states``; the first ``k`` samples are the simulation from the start. Pure and
     traceable."""
-    step, output, x0, fine_torque = _step_and_output(model, params, dt, channels)
+    step, output, x0, fine_torque = step_and_output(model, params, dt, channels)
     fine = fine_torque(torque)
     n = fine.shape[0]
     longest = max(horizons)
@@ -253,7 +275,7 @@ class Prediction(NamedTuple):
     log_likelihood: float
 
 
-def _arrays(record: Record, channels: Sequence[str]) -> tuple[Array, Array, Array]:
+def record_arrays(record: Record, channels: Sequence[str]) -> tuple[Array, Array, Array]:
     """Torque, measured channels (zeros where not logged) and which channels are logged."""
     present = np.array([float(c in record.columns) for c in channels])
     measured = np.stack([record.channel(c) if c in record.columns else np.zeros(record.n_samples)
@@ -267,7 +289,7 @@ def log_likelihood(records: Sequence[Record], model: Model, params: Params,
     """The innovations' Gaussian log-likelihood summed over ``records``."""
     total = 0.0
     for r in records:
-        torque, measured, present = _arrays(r, channels)
+        torque, measured, present = record_arrays(r, channels)
         total += float(_filter_jit(model, params, torque, measured, present, r.dt,
                                    tuple(channels), sigma_y, jnp.asarray(disturbance))
                        .log_likelihood)
@@ -379,7 +401,7 @@ def predict(
     sigma_y = jnp.asarray([levels[c] for c in channels])
     results = []
     for record, ks in zip(records, steps, strict=True):
-        torque, measured, present = _arrays(record, channels)
+        torque, measured, present = record_arrays(record, channels)
         run = _filter_jit(model, values, torque, measured, present, record.dt, tuple(channels),
                           sigma_y, jnp.asarray(disturbance))
         ahead = {}
@@ -396,5 +418,6 @@ def predict(
     return results
 
 
-__all__ = ["Filtered", "Prediction", "check_per_sample", "filter_core", "fit_noise",
-           "horizon_steps", "log_likelihood", "measurement_noise", "predict", "predict_core"]
+__all__ = ["Filtered", "Prediction", "Update", "check_per_sample", "filter_core", "fit_noise",
+           "horizon_steps", "log_likelihood", "measurement_noise", "measurement_update", "predict",
+           "predict_core", "record_arrays", "step_and_output", "value_and_jacobian"]

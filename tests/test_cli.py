@@ -33,7 +33,8 @@ def test_help_and_version_load_no_jax():
     script = (
         "import contextlib, io, sys\n"
         "from jaxflex.cli import main\n"
-        f"for argv in (['--help'], ['--version'], *([c, '--help'] for c in {COMMANDS!r})):\n"
+        f"for argv in (['--help'], ['--version'],\n"
+        f"             *([c.replace('_', '-'), '--help'] for c in {COMMANDS!r})):\n"
         "    with contextlib.redirect_stdout(io.StringIO()) as out:\n"
         "        assert main(argv) == 0 and out.getvalue(), argv\n"
         f"print(sorted(m for m in {HEAVY!r} if m in sys.modules))\n"

@@ -32,7 +32,8 @@ LAYERS: tuple[tuple[str, tuple[str, ...]], ...] = (
               "rigs", "diagnosis")),
     ("estimation", ("initial", "objective", "intervals", "refine", "fit", "rigid", "kalman",
                     "prediction_error", "identification", "comparison_table", "comparison",
-                    "measured", "design", "prediction_report")),
+                    "measured", "design", "prediction_report", "missing_torque",
+                    "torque_regression")),
     ("analysis", ("discovery", "study")),
     ("interface", ("plots", "demo", "cli", "distributed", "jaxflex", "__main__")),
 )

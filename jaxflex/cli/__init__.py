@@ -24,13 +24,15 @@ COMMANDS: tuple[str, ...] = (
     "identify",
     "study",
     "validate",
+    "torque_map",
     "discover",
     "design",
     "demo",
     "datasets",
     "arms",
 )
-"""The sub-commands of ``jaxflex``, in the order the help lists them."""
+"""The sub-commands of ``jaxflex`` by module, in the order the help lists them (a command is
+named as its module, ``-`` for ``_``: ``torque_map`` is ``jaxflex torque-map``)."""
 EXIT_OK, EXIT_BUG, EXIT_USAGE, EXIT_INTERRUPTED, EXIT_TERMINATED = 0, 1, 2, 130, 143
 """Exit codes: success, an internal error, bad input or options, Ctrl-C (SIGINT), SIGTERM."""
 

@@ -18,6 +18,7 @@ if TYPE_CHECKING:  # what static tools see; at run time __getattr__ imports each
     from jaxflex.plots.diagnose import plot_diagnosis, plot_overlay
     from jaxflex.plots.discover import plot_discovery
     from jaxflex.plots.identify import plot_convergence, plot_fit, plot_intervals
+    from jaxflex.plots.missing_torque import plot_missing_torque
     from jaxflex.plots.prediction import plot_prediction
 
 _SOURCES: dict[str, tuple[str, str]] = {
@@ -31,6 +32,7 @@ _SOURCES: dict[str, tuple[str, str]] = {
     "plot_convergence": ("identify", "plot_convergence"),
     "plot_fit": ("identify", "plot_fit"),
     "plot_intervals": ("identify", "plot_intervals"),
+    "plot_missing_torque": ("missing_torque", "plot_missing_torque"),
     "plot_prediction": ("prediction", "plot_prediction"),
 }
 """Each lazily imported name: its module under ``jaxflex.plots`` and its name there."""
@@ -58,6 +60,7 @@ __all__ = [
     "plot_fit",
     "plot_frf",
     "plot_intervals",
+    "plot_missing_torque",
     "plot_overlay",
     "plot_prediction",
     "plot_time",
