@@ -27,6 +27,7 @@ calibration gain, an offset): one that mixes samples is refused.
 from __future__ import annotations
 
 import math
+import warnings
 from collections.abc import Mapping, Sequence
 from typing import NamedTuple
 
@@ -321,7 +322,7 @@ def fit_noise(records: Sequence[Record], model: Model, params: Params,
     noise of the ``free`` channels, never below their ``levels`` (the sensors' own: what the
     model misses adds to them); the other channels keep their ``levels``. Returns the levels
     by channel and ``σ_τ``. A search in the logarithms (bounded for ``σ_τ`` alone, else
-    Nelder–Mead)."""
+    Nelder–Mead); one that does not converge is said in a warning, with where it ended."""
     floors = np.array([levels[c] for c in channels])
     index = [channels.index(c) for c in free]
 
@@ -355,7 +356,13 @@ def fit_noise(records: Sequence[Record], model: Model, params: Params,
                                                 "initial_simplex": _simplex(start)})
         z = np.clip(best.x, lower, upper) if disturbance is None else best.x
     sigma, tau = unpack(z)
-    return dict(zip(channels, map(float, sigma), strict=True)), float(tau)
+    levels = dict(zip(channels, map(float, sigma), strict=True))
+    if not best.success:
+        shown = ", ".join(f"{c} {levels[c]:.4g}" for c in free)
+        warnings.warn(f"the noise levels' maximum-likelihood search did not converge "
+                      f"({' '.join(str(best.message).split())}); the filter uses where it ended: "
+                      f"σ_τ {tau:.4g} N m{', ' + shown if shown else ''}", stacklevel=2)
+    return levels, float(tau)
 
 
 def _simplex(start: Sequence[float]) -> np.ndarray:

@@ -10,14 +10,15 @@ one-step prediction and each horizon's.
 from __future__ import annotations
 
 import math
+import textwrap
 from collections.abc import Mapping, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
 
 from jaxflex.data import Record
-from jaxflex.kalman import Prediction, predict
+from jaxflex.kalman import Prediction, measurement_noise, predict
 from jaxflex.metrics import nrmse
 from jaxflex.model import Model
 from jaxflex.noise import Noise
@@ -33,6 +34,7 @@ class PredictionComparison:
     time: np.ndarray
     simulated: np.ndarray
     prediction: Prediction
+    floors: dict[str, float] = field(default_factory=dict)  # each channel's own noise level
 
     @property
     def channels(self) -> tuple[str, ...]:
@@ -82,13 +84,54 @@ def compare_predictions(
             name=record.name, role="fit" if record.name in fit_names else "held-out",
             time=record.time, simulated=np.stack([np.asarray(out.channel(c))
                                                   for c in prediction.channels]),
-            prediction=prediction))
+            prediction=prediction,
+            floors=measurement_noise([record], model, prediction.channels, noise)))
     return rows
 
 
-def prediction_table(rows: Sequence[PredictionComparison]) -> str:
+WORSE_NOTE = (
+    "{record} {channel}: the prediction {horizon} ahead ({predicted:.3g} %) is worse than the "
+    "free simulation ({simulated:.3g} %): the filter's one-step innovations are {ratio:.3g}x "
+    "the noise it assumes ({sigma:.4g}{unit}{floor}), so the model misses more than the random "
+    "torque σ_τ = {disturbance:.3g} N m it allows for; the state the filter corrects towards "
+    "the data runs off over that horizon, and the simulation is the better forecast there "
+    "(what the model misses: `jaxflex discover`)")
+"""The words of :func:`prediction_notes` for a horizon that predicts worse than the simulation."""
+
+
+def prediction_notes(rows: Sequence[PredictionComparison],
+                     units: Mapping[str, str] | None = None) -> list[str]:
+    """A note for each record and channel whose prediction at some horizon is worse than the
+    free simulation it starts from (the worst such horizon): by how much, and why, from the
+    filter's own innovations against the noise it assumes."""
+    notes = []
+    for row in rows:
+        scores, p = row.scores(), row.prediction
+        horizons = [label for label in scores if label.endswith(" s")]
+        for i, c in enumerate(row.channels):
+            simulated = scores["simulation"][c]
+            worse = [h for h in horizons if scores[h][c] > simulated]
+            if not worse:
+                continue
+            horizon = max(worse, key=lambda h: scores[h][c])
+            sigma = p.sigma_y[c]
+            innovations = p.innovations[i][np.isfinite(p.innovations[i])]
+            ratio = float(np.sqrt(np.mean(innovations**2))) / sigma if innovations.size else 0.0
+            at_floor = c in row.floors and sigma <= row.floors[c] * (1.0 + 1e-9)
+            unit = f" {units[c]}" if units and units.get(c) else ""
+            notes.append(WORSE_NOTE.format(
+                record=row.name, channel=c, horizon=horizon, predicted=scores[horizon][c],
+                simulated=simulated, ratio=ratio, sigma=sigma, unit=unit,
+                floor=", held at the sensor's own level" if at_floor else "",
+                disturbance=p.disturbance))
+    return notes
+
+
+def prediction_table(rows: Sequence[PredictionComparison],
+                     units: Mapping[str, str] | None = None) -> str:
     """One line per record and channel: NRMSE of the simulation, the one-step prediction and
-    each horizon's prediction (percent)."""
+    each horizon's prediction (percent); then :func:`prediction_notes` (``units``: each
+    channel's, for the noise levels they quote)."""
     labels = list(rows[0].scores())
     head = f"{'record':<20} {'role':<8} {'channel':<18}" + "".join(f"{lab:>12}" for lab in labels)
     lines = ["NRMSE (%) of the simulation and of the k-step-ahead predictions", head]
@@ -98,7 +141,9 @@ def prediction_table(rows: Sequence[PredictionComparison]) -> str:
             lines.append(f"{row.name[:20]:<20} {row.role:<8} {c[:18]:<18}"
                          + "".join(f"{scores[lab][c]:>12.3g}" if math.isfinite(scores[lab][c])
                                    else f"{'no motion':>12}" for lab in labels))
-    return "\n".join(lines) + "\n"
+    notes = [textwrap.fill(n, 100, subsequent_indent="  ") for n in prediction_notes(rows, units)]
+    return "\n".join([*lines, *notes]) + "\n"
 
 
-__all__ = ["PredictionComparison", "compare_predictions", "prediction_table"]
+__all__ = ["WORSE_NOTE", "PredictionComparison", "compare_predictions", "prediction_notes",
+           "prediction_table"]

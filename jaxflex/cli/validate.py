@@ -183,7 +183,7 @@ def run(args: argparse.Namespace) -> int:
         predictions = compare_predictions(
             ready, model, params, horizons, fit_names=comparison_fit_names(fit, names),
             channels=comparison.channels, **filter_noise(fit))
-        print(prediction_table(predictions), end="")
+        print(prediction_table(predictions, comparison.units), end="")
     with all_or_nothing():
         if json_target is not None:
             rows = [{"name": r.name, "role": r.role, "nrmse": dict(r.nrmse)}
