@@ -105,14 +105,6 @@ RULES: dict[str, Rule] = {r.name: r for r in (
          "parameters (not the null side), after that bound was moved out once to the effect's "
          "physical limit where it states one and the bound was not given: the bound, not the "
          "records, set the value, so it is not an explanation"),
-    Rule("alternative", "another candidate fits about equally well",
-         "two candidates were confirmed and their refits' LRs differ by less than "
-         f"ALTERNATIVE_LR ({ALTERNATIVE_LR:g}, the χ²₁ 95 % quantile); both are named with "
-         "what tells them apart (a stated table by pair, else by the hook each acts through)"),
-    Rule("base_on_bound", "a base parameter ends on a bound",
-         "a fitted base parameter lies within ON_BOUND (0.1 %) of one of its bounds at the "
-         "step's fit: the bound, not the records, set it (it may stand in for a missing "
-         "effect)"),
     Rule("not_confirmed", "not added: the refit did not confirm it",
          "the effect was refitted and its LR p-value is not below the step's level, or the "
          "BIC did not fall, or its parameters ended on their null-side bound"),
@@ -126,6 +118,14 @@ RULES: dict[str, Rule] = {r.name: r for r in (
     Rule("refit_gain", "what a refit lowers",
          "stated for every candidate: a refit's LR and share of the misfit above the noise "
          "when it was refitted, else the score S, the first-order drop of −2 log L"),
+    Rule("alternative", "another candidate fits about equally well",
+         "two candidates were confirmed and their refits' LRs differ by less than "
+         f"ALTERNATIVE_LR ({ALTERNATIVE_LR:g}, the χ²₁ 95 % quantile); both are named with "
+         "what tells them apart (a stated table by pair, else by the hook each acts through)"),
+    Rule("base_on_bound", "a base parameter ends on a bound",
+         "a fitted base parameter lies within ON_BOUND (0.1 %) of one of its bounds at the "
+         "step's fit: the bound, not the records, set it (it may stand in for a missing "
+         "effect)"),
     Rule("resonance", "a resonance shift points to the effect",
          "the effect changes mass or stiffness and a resonance's measured and model "
          "frequencies differ by more than the records' frequency resolution 1/T; for an "

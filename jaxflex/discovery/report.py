@@ -160,8 +160,7 @@ class Step:
             "lr_p_value": self.p_value,
             "explained": self.explained,
             "on_bound": dict(self.on_bound),
-            "alternatives": [{k: v for k, v in a.items() if k != "text"} | {"text": a["text"]}
-                             for a in self.alternatives],
+            "alternatives": [dict(a) for a in self.alternatives],
         }
 
 
