@@ -240,3 +240,25 @@ def test_a_pair_outside_the_table_is_told_apart_by_the_hooks():
     text = alternatives(ranking)[0]["tells_apart"]
     assert text.startswith("gravity depends on the angle")
     assert "delay changes the torque's timing" in text
+
+
+def test_a_sub_sample_delay_names_the_lag_as_its_alternative():
+    """A hidden delay of a quarter sample (0.25 ms at 1 kHz): a delay and a first-order lag
+    agree to first order in their time constant, and at this size their refits' likelihood
+    ratios differ by less than the χ²₁ 95 % quantile. Whichever is added, both are named, with
+    what tells them apart, in the table, the explanations and the JSON."""
+    records, _, _ = one("delay", 2.5e-4, seed=3)
+    report = discover(records, initial=START, candidates=["delay", "motor_lag"], max_steps=1)
+    data = check_claims(report)
+    assert set(report.added) <= {"delay", "motor_lag"} and len(report.added) == 1
+    step = data["steps"][[s.structure for s in report.steps].index("base")]
+    (close,) = step["alternatives"]
+    lrs = {e["effect"]: e["evidence"]["refit"]["lr"] for e in data["ranking"][0]}
+    assert set(close["effects"]) == {"delay", "motor_lag"} and close["effects"][0] == (
+        report.added[0])
+    assert min(lrs.values()) > 100 and abs(lrs["delay"] - lrs["motor_lag"]) < ALTERNATIVE_LR
+    apart = TELLS_APART[frozenset({"delay", "motor_lag"})]
+    assert close["tells_apart"] == apart and "chirp" in apart
+    for entry in data["ranking"][0]:
+        assert apart in entry["explanation"]
+    assert f"after 'base', alternatives: {close['text']}" in report.table()

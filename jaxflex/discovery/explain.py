@@ -511,8 +511,8 @@ def alternatives(ranking: Sequence[ScoreResult],
             "effects": [first.effect, r.effect], "lr": [lr0, refit["lr"]],
             "difference": lr0 - refit["lr"], "threshold": ALTERNATIVE_LR,
             "tells_apart": apart,
-            "text": (f"{first.effect} and {r.effect} fit about equally well (LR {lr0:.3g} and "
-                     f"{refit['lr']:.3g} differ by {lr0 - refit['lr']:.2g} < "
+            "text": (f"{first.effect} and {r.effect} fit about equally well (LR {lr0:.1f} and "
+                     f"{refit['lr']:.1f} differ by {lr0 - refit['lr']:.2g} < "
                      f"{ALTERNATIVE_LR:g}, the χ²₁ 95 % quantile): {apart}")})
     return out
 
