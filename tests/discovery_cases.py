@@ -119,6 +119,14 @@ def check_claims(report):
                 r = ev["refit"]
                 assert not r["confirmed"]
                 assert r["p_value"] >= r["level"] or r["delta_bic"] >= 0 or r["at_null"]
+            if status == "on_bound":
+                r = ev["refit"]
+                assert not r["confirmed"] and r["on_bound"] and not r["at_null"]
+                assert "not an explanation" in text
+                for name, side in r["on_bound"].items():
+                    bound = r["bounds"][name][side == "upper"]
+                    assert abs(r["params"][name] - bound) <= 1e-3 * abs(bound) or not r[
+                        "bounds"][name][0] > 0
             if status == "not_significant":
                 s = ev["score"]
                 assert s["p_value"] >= s["level"] and not s["significant"]

@@ -418,14 +418,22 @@ def test_discover_holds_fixed_parameters_and_respects_bounds(payload_case):
 
 
 @pytest.mark.slow  # a discovery run; the fast set keeps one of its kind
-def test_discover_holds_effect_bounds_when_the_effect_is_added(payload_case):
+def test_discover_holds_effect_bounds_when_the_effect_is_refitted(payload_case):
+    """A given bound holds in the refit and is not widened: the payload's refit ends on it (the
+    truth, 0.03 kg, lies above), so the bound, not the records, set its mass: not added."""
     records, _, _ = payload_case
     report = discover(records, initial=START, fixed=HELD, bounds={"m_p": (0.01, 0.028)},
                       max_steps=1, candidates=["payload"])
-    assert report.added == ("payload",), report.table()
+    assert report.added == (), report.table()
     for step in report.steps[1:]:
         assert step.fit.params["beta"] == HELD["beta"]
-    assert report.final.fit.params["m_p"] == pytest.approx(0.028)  # the truth, 0.03, lies above
+    payload = report.base.ranking[0]
+    refit = payload.evidence["refit"]
+    assert refit["params"]["m_p"] == pytest.approx(0.028)
+    assert refit["on_bound"] == {"m_p": "upper"} and refit["widened"] == {}
+    assert payload.status == "on_bound"
+    assert "its refit ends on the upper bound of m_p (28 g): not an explanation" in (
+        payload.explanation)
 
 
 @pytest.mark.parametrize(("keyword", "value", "message"), [

@@ -47,7 +47,13 @@ The loop (:func:`discover`)
     missing effect as far as they could, also from where the run started — the given start or, from
     scratch, the search's centre — its profile taken there), confirm each by the likelihood-ratio
     test ``LR = C₀ − C₁`` at ``alpha/m`` and a falling BIC (``C + d·ln N``), and add the one with
-    the largest LR. The score test is local: when the misfit is too large for a first-order picture
+    the largest LR. A refit that ends on a bound of the effect's own parameters (not its null
+    side) is no explanation: that bound is moved out once to the effect's physical limit
+    (:meth:`~jaxflex.effects.AbstractEffect.physical_limits`; a given bound stays) and the
+    candidate refitted; still on it, it is not confirmed and the next one is taken. Two
+    confirmed candidates whose LRs differ by less than the χ²₁ 95 % quantile are named as
+    alternatives, with what would tell them apart. The score test is local: when the misfit is
+    too large for a first-order picture
     and no refitted candidate explained most of it (:data:`MIN_EXPLAINED`) while the residuals are
     not noise, each other candidate's 1-D profile (the fitted parameters re-optimised to first
     order) is scanned, and every one the scan finds is refitted. Ties are real: a delay and a

@@ -12,12 +12,69 @@ import numpy as np
 from jaxflex.discovery._engine import Engine, ProfileRequest
 from jaxflex.discovery.report import Confirmation
 from jaxflex.discovery.scores import ScoreResult, lr_test
-from jaxflex.parameters import ParameterSpace
+from jaxflex.parameters import ParameterSpace, ParameterSpec
 
 BOUND_TOL = 1e-3
 
 """A refit effect whose parameters all end this close (unit box) to their null-side bound is
 not confirmed: the fit used it only to polish the others."""
+
+
+ON_BOUND = 1e-3
+
+"""A parameter ends on a bound when it lies within this fraction of the bound's value of it (of
+the range, for a parameter on a linear scale)."""
+
+
+def on_bound(params: Mapping[str, float], specs: Iterable[ParameterSpec],
+             null_side: bool = True) -> dict[str, str]:
+    """The parameters of ``params`` that end on a bound of their ``specs``, each with the side
+    (``"lower"``, ``"upper"``); with ``null_side=False`` not the bound where an effect
+    vanishes (its null at or beyond that bound: :attr:`Confirmation.at_null` judges it)."""
+    out = {}
+    for spec in specs:
+        if spec.name not in params:
+            continue
+        value = float(params[spec.name])
+        for side, bound in (("lower", spec.lower), ("upper", spec.upper)):
+            if not null_side and spec.null is not None and (
+                    spec.null <= spec.lower if side == "lower" else spec.null >= spec.upper):
+                continue
+            scale = abs(bound) if spec.log_scale else spec.upper - spec.lower
+            if abs(value - bound) <= ON_BOUND * scale:
+                out[spec.name] = side
+    return out
+
+
+def _own_specs(engine: Engine, slot: int) -> list[ParameterSpec]:
+    """The specs of a slot's parameters under the effect's own names (the universe's bounds)."""
+    u = engine.universe
+    s = u.slots[slot]
+    return [dataclasses.replace(u.space[n], name=o)
+            for n, o in zip(s.names, s.own_names, strict=True)]
+
+
+def _widened(engine: Engine, slot: int, x1: np.ndarray, active: Sequence[int],
+             ends: Mapping[str, str]) -> dict[str, tuple[float, float]]:
+    """The new bounds (universe names) of the slot's parameters that ended on a bound: that
+    bound moved out to the effect's physical limit
+    (:meth:`~jaxflex.effects.AbstractEffect.physical_limits`), where the limit lies beyond it
+    and the bounds were not given (a given bound is the user's word)."""
+    u = engine.universe
+    s = u.slots[slot]
+    limits = s.effect.physical_limits(u.base.testbed, u.params(x1, active))
+    out = {}
+    for name, own in zip(s.names, s.own_names, strict=True):
+        if (own not in ends or own not in limits or name in u.bounds
+                or name in engine.widened):  # widened once only
+            continue
+        spec, (lo, hi) = u.space[name], limits[own]
+        if ends[own] == "upper" and hi > spec.upper * (1 + ON_BOUND):
+            out[name] = (spec.lower, float(hi))
+        elif (ends[own] == "lower" and lo < spec.lower - ON_BOUND * abs(spec.lower)
+              and not (spec.log_scale and lo <= 0)):
+            out[name] = (float(lo), spec.upper)
+    return out
 
 
 def profile_scan(engine: Engine, x: np.ndarray, active: Sequence[int],
@@ -95,20 +152,54 @@ def confirm(engine: Engine, x: np.ndarray, cost: float, active: Sequence[int],
             choice = (asked[k][2], found[k][0])
         tries.append((n, *choice))
     fits = engine.fit_many([(x_start, list(active) + [slot]) for _, slot, x_start in tries])
-    out = []
-    for n, (candidate, _, _) in enumerate(requests):
+    ends = []
+    for n in range(len(requests)):
         (x1, cost1), slot = min(((fit, slot) for (m, slot, _), fit in zip(tries, fits,
                                                                            strict=True)
                                  if m == n), key=lambda item: item[0][1])
-        out.append((_confirmation(engine, cost, active, candidate, slot, x1, cost1, level),
-                    slot, x1, cost1))
+        ends.append((slot, x1, cost1, {}))
+    ends = _widen(engine, ends, active)
+    return [(_confirmation(engine, cost, active, candidate, slot, x1, cost1, level, widened),
+             slot, x1, cost1)
+            for (candidate, _, _), (slot, x1, cost1, widened) in zip(requests, ends,
+                                                                     strict=True)]
+
+
+def _widen(engine: Engine, ends: list, active: Sequence[int]) -> list:
+    """The refits ``(slot, x1, cost1, {})`` where one ended on a bound of its own parameters
+    (not its null side) that physics allows to move: that bound moved out to the effect's
+    physical limit (:func:`_widened`, for the rest of the run: the universe keeps it) and the
+    candidate refitted from its end, once; each with the bounds it had before (own names)."""
+    u = engine.universe
+    wider: dict[str, tuple[float, float]] = {}
+    which = []
+    for k, (slot, x1, _, _) in enumerate(ends):
+        params = u.params(x1, list(active) + [slot])
+        found = _widened(engine, slot, x1, active,
+                         on_bound(params, _own_specs(engine, slot), null_side=False))
+        if found:
+            wider |= found
+            which.append(k)
+    if not wider:
+        return ends
+    before = {n: (u.space[n].lower, u.space[n].upper) for n in wider}
+    engine.universe = dataclasses.replace(u, space=u.space.with_bounds(wider))
+    engine.widened |= set(wider)
+    refits = engine.fit_many([(ends[k][1], list(active) + [ends[k][0]]) for k in which])
+    out = list(ends)
+    for k, (x1, cost1) in zip(which, refits, strict=True):
+        s = u.slots[ends[k][0]]
+        old = {o: before[n] for n, o in zip(s.names, s.own_names, strict=True) if n in before}
+        out[k] = (ends[k][0], x1, cost1, old)
     return out
 
 
 def _confirmation(engine: Engine, cost: float, active: Sequence[int], candidate: int,
-                  slot: int, x1: np.ndarray, cost1: float, level: float) -> Confirmation:
+                  slot: int, x1: np.ndarray, cost1: float, level: float,
+                  widened: Mapping[str, tuple[float, float]]) -> Confirmation:
     """The likelihood-ratio test and BIC change of the refit ``x1`` (cost ``cost1``) of
-    ``candidate`` in ``slot`` against the fit of cost ``cost``."""
+    ``candidate`` in ``slot`` against the fit of cost ``cost``; ``widened``: the bounds its
+    parameters had before they were widened (own names)."""
     u = engine.universe
     specs = [u.space[n] for n in u.slots[slot].tested]
     lr = cost - cost1
@@ -117,17 +208,23 @@ def _confirmation(engine: Engine, cost: float, active: Sequence[int], candidate:
     p = lr_test(lr, specs)
     delta_bic = len(u.slots[slot].names) * math.log(engine.n_samples) - lr  # every fitted one
     at_null = bool(np.all(unit < BOUND_TOL))
+    params = u.params(x1, list(active) + [slot])
+    own = _own_specs(engine, slot)
+    ends = {} if at_null else on_bound(params, own, null_side=False)
     return Confirmation(
         effect=u.candidates[candidate].name,
         lr=lr,
         p_value=p,
         delta_bic=delta_bic,
         explained=lr / max(cost - engine.noise_cost, 1e-12),
-        confirmed=bool(p < level and delta_bic < 0 and not at_null),
-        params=u.params(x1, list(active) + [slot]),
+        confirmed=bool(p < level and delta_bic < 0 and not at_null and not ends),
+        params=params,
         member=u.slots[slot].member,
         setting=u.candidates[candidate].label(u.slots[slot].member),
         level=level,
         at_null=at_null,
+        on_bound=ends,
+        bounds={s.name: (s.lower, s.upper) for s in own},
+        widened=dict(widened),
     )
 

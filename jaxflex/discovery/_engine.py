@@ -130,6 +130,7 @@ class Engine:
     max_iterations: int = LM_STEPS
     weights: dict[str, float] = dataclasses.field(default_factory=dict)  # user channel weights
     record_start: tuple[str, int] = ("rest", DEFAULT_MODES)  # initial-state option, modes
+    widened: set[str] = dataclasses.field(default_factory=set)  # bounds moved to their limit
     _columns: dict = dataclasses.field(default_factory=dict, repr=False)  # Jacobians kept
 
     @classmethod

@@ -41,6 +41,43 @@ LOWERS_FREQUENCIES = frozenset({"payload", "root_compliance"})
 """Effects that can only lower the resonances (added mass, added compliance)."""
 
 
+ALTERNATIVE_LR = 3.84
+
+"""Two confirmed candidates fit about equally well when their refits' likelihood ratios differ by
+less than this: the χ²₁ 95 % quantile, the smallest difference of −2 log L a likelihood-ratio
+test of one parameter resolves."""
+
+
+TELLS_APART: dict[frozenset[str], str] = {
+    frozenset({"payload", "root_compliance"}):
+        "a payload adds inertia to the whole arm, a compliant clamp none: a record with a slow "
+        "sweep (the rigid-body response to the torque) or an accelerometer at the tip tells "
+        "them apart",
+    frozenset({"delay", "motor_lag"}):
+        "a delay's phase lag grows with frequency without end, a lag's stops at 90°: a record "
+        "with a chirp well above 1/(2π T_m) tells them apart",
+    frozenset({"payload", "gravity"}):
+        "a payload's torque follows the acceleration, gravity's the angle: a record held at "
+        "several angles, or a slow sweep over a wide angle, tells them apart",
+    frozenset({"stribeck", "torque_offset"}):
+        "Stribeck friction acts only near zero speed and opposes the motion, an offset acts "
+        "always in one direction: a record with slow reversals both ways tells them apart",
+}
+"""What tells two effects apart, by pair: an input that excites them differently or a sensor."""
+
+
+BY_HOOK: dict[str, str] = {
+    "structure": "changes mass or stiffness: a record through the first resonance (a chirp) or "
+                 "an accelerometer at the tip",
+    "friction": "acts through the joint speed: a slow record with reversals",
+    "loads": "depends on the angle: a record over a wide range of angles",
+    "input_torque": "changes the torque's timing: a chirp to high frequency",
+    "readings": "changes only what a sensor reads: a second sensor of the same quantity",
+}
+"""What shows an effect, by the model hook it acts through, where :data:`TELLS_APART` names no
+pair."""
+
+
 @dataclass(frozen=True)
 class Rule:
     """One kind of claim: what it says and the condition on the statistics that allows it."""
@@ -63,6 +100,11 @@ RULES: dict[str, Rule] = {r.name: r for r in (
          "channels), and the final residuals are not noise"),
     Rule("lower", "not added: its refit gain is lower than the added effect's",
          "the refit confirmed the effect but another confirmed candidate's LR is larger"),
+    Rule("on_bound", "not added: its refit ends on a bound of its own parameters",
+         "the refit ended within ON_BOUND (0.1 %) of a bound of one of the effect's own "
+         "parameters (not the null side), after that bound was moved out once to the effect's "
+         "physical limit where it states one and the bound was not given: the bound, not the "
+         "records, set the value, so it is not an explanation"),
     Rule("not_confirmed", "not added: the refit did not confirm it",
          "the effect was refitted and its LR p-value is not below the step's level, or the "
          "BIC did not fall, or its parameters ended on their null-side bound"),
@@ -76,6 +118,14 @@ RULES: dict[str, Rule] = {r.name: r for r in (
     Rule("refit_gain", "what a refit lowers",
          "stated for every candidate: a refit's LR and share of the misfit above the noise "
          "when it was refitted, else the score S, the first-order drop of −2 log L"),
+    Rule("alternative", "another candidate fits about equally well",
+         "two candidates were confirmed and their refits' LRs differ by less than "
+         f"ALTERNATIVE_LR ({ALTERNATIVE_LR:g}, the χ²₁ 95 % quantile); both are named with "
+         "what tells them apart (a stated table by pair, else by the hook each acts through)"),
+    Rule("base_on_bound", "a base parameter ends on a bound",
+         "a fitted base parameter lies within ON_BOUND (0.1 %) of one of its bounds at the "
+         "step's fit: the bound, not the records, set it (it may stand in for a missing "
+         "effect)"),
     Rule("resonance", "a resonance shift points to the effect",
          "the effect changes mass or stiffness and a resonance's measured and model "
          "frequencies differ by more than the records' frequency resolution 1/T; for an "
@@ -235,6 +285,9 @@ def collect_evidence(result: ScoreResult, effect: AbstractEffect, diagnosis: Dia
         ev["refit"] = {"lr": refit.lr, "p_value": refit.p_value, "level": refit.level,
                        "delta_bic": refit.delta_bic, "explained": refit.explained,
                        "confirmed": refit.confirmed, "at_null": refit.at_null,
+                       "on_bound": dict(refit.on_bound),
+                       "bounds": {n: list(b) for n, b in refit.bounds.items()},
+                       "widened": {n: list(b) for n, b in refit.widened.items()},
                        "params": {n: refit.params[n] for n in names if n in refit.params},
                        "holdout_error": refit.holdout_error}
     return ev
@@ -270,7 +323,9 @@ def status_of(result: ScoreResult, added: str | None, chosen: str | None,
     if result.effect == chosen and result.effect in withdrawn:
         return "withdrawn"
     if refit is not None:
-        return "lower" if refit["confirmed"] else "not_confirmed"
+        if refit["confirmed"]:
+            return "lower"
+        return "on_bound" if refit.get("on_bound") else "not_confirmed"
     profile = ev.get("profile") or {}
     if ev["score"]["significant"] or profile.get("significant"):
         return "not_refitted"
@@ -297,6 +352,33 @@ def _refit_gain(ev: Mapping[str, Any]) -> str:
             f"(one-step estimate {_magnitude(ev['estimate'], ev['units'])})")
 
 
+def _amount(value: float, unit: str) -> str:
+    """``0.4 rad/(N m)``, a mass in grams, a time in milliseconds (as :func:`_magnitude`)."""
+    return _magnitude({"x": value}, {"x": unit})[len("x = "):]
+
+
+def bound_words(name: str, side: str, bound: float, unit: str) -> str:
+    """``"the upper bound of c_r (0.4 rad/(N m))"``."""
+    return f"the {side} bound of {name} ({_amount(bound, unit)})"
+
+
+def ends_on_bound(refit: Mapping[str, Any], units: Mapping[str, str]) -> str:
+    """Why a refit that ended on a bound is no explanation, in words: which bound, and whether
+    it was moved out to the effect's physical limit first."""
+    parts = []
+    for name, side in refit["on_bound"].items():
+        bound = refit["bounds"][name][0 if side == "lower" else 1]
+        unit = units.get(name, "")
+        text = bound_words(name, side, bound, unit)
+        before = (refit.get("widened") or {}).get(name)
+        if before is not None:
+            old = before[0 if side == "lower" else 1]
+            text += (f", its physical limit (the bound {_amount(old, unit)} was moved out to it "
+                     "and the effect refitted)")
+        parts.append(text)
+    return f"its refit ends on {' and '.join(parts)}: not an explanation"
+
+
 def _verdict(status: str, ev: Mapping[str, Any], chosen: str | None,
              min_explained: float) -> str:
     refit = ev.get("refit") or {}
@@ -312,6 +394,8 @@ def _verdict(status: str, ev: Mapping[str, Any], chosen: str | None,
     if status == "lower":
         return (f"not added, its refit gain is lower than {chosen}'s: "
                 f"{_refit_gain(ev)}")
+    if status == "on_bound":
+        return f"not added: {ends_on_bound(refit, ev['units'])}: {_refit_gain(ev)}"
     if status == "not_confirmed":
         why = []
         if refit["lr"] >= 0:  # else the refit gain says it ended worse
@@ -334,10 +418,15 @@ def _verdict(status: str, ev: Mapping[str, Any], chosen: str | None,
 
 
 def claims(result: ScoreResult, status: str, *, chosen: str | None = None,
-           min_explained: float = 0.9) -> list[dict[str, str]]:
-    """The claims ``result``'s evidence allows, each ``{"rule": name, "text": sentence}``."""
+           min_explained: float = 0.9,
+           alternatives: Sequence[Mapping[str, Any]] = ()) -> list[dict[str, str]]:
+    """The claims ``result``'s evidence allows, each ``{"rule": name, "text": sentence}``;
+    ``alternatives`` are the step's (:func:`alternatives`): those that name the result add
+    theirs."""
     ev = result.evidence
     out = [{"rule": status, "text": _verdict(status, ev, chosen, min_explained)}]
+    out += [{"rule": "alternative", "text": a["text"]} for a in alternatives
+            if result.effect in a["effects"]]
     res = ev.get("resonance")
     if res and res["cited"]:
         side = "high" if res["shift_hz"] > 0 else "low"
@@ -386,22 +475,68 @@ def explain(result: ScoreResult, effect: AbstractEffect, diagnosis: Diagnosis | 
     return sentence(r)
 
 
-def annotate(steps: Sequence[Any], withdrawn: Sequence[str], min_explained: float) -> list[Any]:
-    """The steps with every ranked candidate's status, claims and explanation set."""
+def tells_apart(a: str, b: str, effects: Mapping[str, AbstractEffect] | None = None) -> str:
+    """What tells candidates ``a`` and ``b`` apart: :data:`TELLS_APART`'s sentence for the pair,
+    else :data:`BY_HOOK`'s for the hook each acts through (``effects``: each candidate's effect
+    by name; one not given: by its registry entry)."""
+    from jaxflex.effects import get_effect
+
+    def effect(name: str) -> AbstractEffect:
+        return (effects or {}).get(name) or get_effect(name)
+
+    names = frozenset({_inner(effect(a)).name, _inner(effect(b)).name})
+    if names in TELLS_APART:
+        return TELLS_APART[names]
+    words = [f"{n} " + "; ".join(BY_HOOK[h] for h in sorted(_hooks(effect(n)) or {"readings"}))
+             for n in (a, b)]
+    return " — ".join(words) + " — tells them apart"
+
+
+def alternatives(ranking: Sequence[ScoreResult],
+                 effects: Mapping[str, AbstractEffect] | None = None) -> list[dict[str, Any]]:
+    """The :data:`RULES` ``"alternative"`` of a ranked step: each confirmed candidate whose
+    refit's LR lies within :data:`ALTERNATIVE_LR` of the first's, with the first, the LRs and
+    what tells them apart (``effects``: each candidate's effect, by name)."""
+    if not ranking or ranked_by(ranking[0]) != "LR":
+        return []
+    first = ranking[0]
+    lr0 = first.evidence["refit"]["lr"]
+    out = []
+    for r in ranking[1:]:
+        refit = r.evidence.get("refit")
+        if refit is None or not refit["confirmed"] or lr0 - refit["lr"] >= ALTERNATIVE_LR:
+            continue
+        apart = tells_apart(first.effect, r.effect, effects)
+        out.append({
+            "effects": [first.effect, r.effect], "lr": [lr0, refit["lr"]],
+            "difference": lr0 - refit["lr"], "threshold": ALTERNATIVE_LR,
+            "tells_apart": apart,
+            "text": (f"{first.effect} and {r.effect} fit about equally well (LR {lr0:.1f} and "
+                     f"{refit['lr']:.1f} differ by {lr0 - refit['lr']:.2g} < "
+                     f"{ALTERNATIVE_LR:g}, the χ²₁ 95 % quantile): {apart}")})
+    return out
+
+
+def annotate(steps: Sequence[Any], withdrawn: Sequence[str], min_explained: float,
+             effects: Mapping[str, AbstractEffect] | None = None) -> list[Any]:
+    """The steps with every ranked candidate's status, claims and explanation set, and each
+    step's :func:`alternatives` (``effects``: each candidate's effect, by name)."""
     out = []
     for i, step in enumerate(steps):
         added = steps[i + 1].added if i + 1 < len(steps) else None
         added = None if added in withdrawn else added  # a withdrawn effect explains nothing
         ranking = list(step.ranking)
         chosen = (ranking[0].effect if ranking and ranked_by(ranking[0]) == "LR" else None)
+        close = alternatives(ranking, effects)
         new = []
         for rank, r in enumerate(ranking, start=1):
             status = status_of(r, added, chosen, withdrawn)
             r = dataclasses.replace(r, status=status, rank=rank)
             r = dataclasses.replace(r, claims=tuple(
-                claims(r, status, chosen=chosen, min_explained=min_explained)))
+                claims(r, status, chosen=chosen, min_explained=min_explained,
+                       alternatives=close)))
             new.append(dataclasses.replace(r, explanation=sentence(r)))
-        out.append(dataclasses.replace(step, ranking=tuple(new)))
+        out.append(dataclasses.replace(step, ranking=tuple(new), alternatives=tuple(close)))
     return out
 
 
@@ -438,8 +573,11 @@ def noise_claim(channel: ChannelDiagnosis, alpha: float) -> tuple[bool, str, str
 
 
 __all__ = [
+    "ALTERNATIVE_LR",
     "RULES",
     "Rule",
+    "TELLS_APART",
+    "alternatives",
     "annotate",
     "claims",
     "collect_evidence",
@@ -448,4 +586,5 @@ __all__ = [
     "percent",
     "ranking_key",
     "ranking_line",
+    "tells_apart",
 ]

@@ -22,7 +22,7 @@ from jaxflex.diagnosis import (
     diagnose,
     noise_levels,
 )
-from jaxflex.discovery._confirm import confirm, profile_scan
+from jaxflex.discovery._confirm import confirm, on_bound, profile_scan
 from jaxflex.discovery._engine import Engine
 from jaxflex.discovery.candidates import Candidate, candidate_set
 from jaxflex.discovery.explain import annotate, collect_evidence, percent, ranking_key
@@ -376,7 +376,10 @@ def discover(
                     for c, x1 in zip(confirmations, ends, strict=True)]
             ranking = _final_ranking(ranking, confirmations, u.candidates, diag, alpha / m,
                                      _mean_error(held), skipped)
+        specs = [engine.universe.space[n] for n in u.base_names]
+        ends = on_bound(u.params(x, active), specs)
         steps.append(Step(
+            on_bound=ends, bounds={s.name: (s.lower, s.upper) for s in specs if s.name in ends},
             added=added.get("name"), fit=engine.discovery_fit(x, active, cost), nrmse=nrmse,
             frf_nrmse=frf, holdout=held, diagnosis=diag, ranking=tuple(ranking),
             confirmations=tuple(confirmations), lr=added.get("lr"),
@@ -397,7 +400,8 @@ def discover(
 
     steps, cut = _withdraw(steps)
     withdrawn = [s.added for s in cut if s.added]
-    every = annotate([*steps, *cut], withdrawn, MIN_EXPLAINED)
+    every = annotate([*steps, *cut], withdrawn, MIN_EXPLAINED,
+                     {c.name: c.effects[0] for c in cands})
     steps, cut = every[:len(steps)], every[len(steps):]
     unexplained = steps[-1].diagnosis.unexplained()
     if unexplained is not None:

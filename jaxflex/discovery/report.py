@@ -14,7 +14,7 @@ from jaxflex.diagnosis import (
     Diagnosis,
     NoiseLevel,
 )
-from jaxflex.discovery.explain import RULES, ranking_line
+from jaxflex.discovery.explain import RULES, bound_words, ranking_line
 from jaxflex.discovery.scores import ScoreResult
 from jaxflex.model import Model
 from jaxflex.simulation import Outputs
@@ -70,7 +70,11 @@ class Confirmation:
     misfit above the noise it removed; ``member`` the profile member refitted (``setting``).
     ``level`` is the level the LR test was judged at, ``at_null`` whether the effect's parameters
     ended on their null-side bound, ``holdout_error`` the held-out relative error of the refit
-    (the mean over the channels; ``None`` without held-out records).
+    (the mean over the channels; ``None`` without held-out records). ``on_bound``: the effect's
+    own parameters that ended on another bound, each with its side (such a refit is not
+    confirmed: the bound, not the records, set its value); ``bounds`` its parameters' bounds at
+    the end, ``widened`` the bounds they had before a bound was moved out to the effect's
+    physical limit and the candidate refitted.
     """
 
     effect: str
@@ -85,6 +89,9 @@ class Confirmation:
     level: float = math.nan
     at_null: bool = False
     holdout_error: float | None = None
+    on_bound: dict[str, str] = field(default_factory=dict)
+    bounds: dict[str, tuple[float, float]] = field(default_factory=dict)
+    widened: dict[str, tuple[float, float]] = field(default_factory=dict)
 
 
 @dataclass(frozen=True)
@@ -105,6 +112,24 @@ class Step:
     label: str = ""
     predictions: tuple[Outputs, ...] = field(default=(), repr=False)
     holdout_predictions: tuple[Outputs, ...] = field(default=(), repr=False)
+    on_bound: dict[str, str] = field(default_factory=dict)  # base parameters: name → side
+    bounds: dict[str, tuple[float, float]] = field(default_factory=dict)  # of those on_bound
+    alternatives: tuple[dict[str, Any], ...] = ()  # confirmed candidates about as good
+
+    def bound_notes(self) -> list[str]:
+        """The :data:`~jaxflex.discovery.explain.RULES` ``"base_on_bound"`` claim of each base
+        parameter that ends on a bound at this step, e.g. ``"after 'base': b_v ends on the
+        upper bound of b_v (0.3 N m s/rad): the bound, not the records, set it"``."""
+        from jaxflex.fit import parameter_units
+
+        units = parameter_units(self.fit.model) if self.fit.model is not None else {}
+        notes = []
+        for name, side in self.on_bound.items():
+            bound = self.bounds[name][0 if side == "lower" else 1]
+            words = bound_words(name, side, bound, units.get(name, ""))
+            notes.append(f"after '{self.structure}': {name} ends on {words}: the bound, not "
+                         "the records, set it")
+        return notes
 
     @property
     def effects(self) -> tuple[str, ...]:
@@ -134,6 +159,8 @@ class Step:
             "lr": self.lr,
             "lr_p_value": self.p_value,
             "explained": self.explained,
+            "on_bound": dict(self.on_bound),
+            "alternatives": [dict(a) for a in self.alternatives],
         }
 
 
@@ -212,8 +239,10 @@ class DiscoveryReport:
                          f"{self.final.diagnosis.amount(level.sigma, channel, 4)} "
                          f"({level.describe()})")
         for s in (*self.steps, *self.withdrawn_steps):
+            lines += s.bound_notes()
             if s.ranking:
                 lines.append(ranking_line(s.structure, s.ranking))
+            lines += [f"after '{s.structure}', alternatives: {a['text']}" for a in s.alternatives]
         if self.withdrawn:
             held = " and did not lower the held-out error" if self.holdout is not None else ""
             share = 100 * self.settings.get("min_explained", 0.9)
@@ -246,6 +275,7 @@ class DiscoveryReport:
         :mod:`jaxflex.discovery.explain`: one rule per claim)."""
         lines = []
         for s in self.steps:
+            lines += [f"{note}." for note in s.bound_notes()]
             for r in s.ranking[:3]:
                 if r.explanation:
                     lines.append(r.explanation)

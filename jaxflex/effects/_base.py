@@ -33,6 +33,7 @@ from jaxtyping import Array, Float
 
 from jaxflex._arguments import raised
 from jaxflex.parameters import ParameterSpec, Params
+from jaxflex.testbed import Testbed
 
 
 class Structure(eqx.Module):
@@ -65,6 +66,16 @@ class AbstractEffect(eqx.Module):
     needs_declaration: ClassVar[bool] = False
     """True for an effect that exists only as declared (a formula): the library holds no
     default instance of it."""
+    limits: ClassVar[Mapping[str, tuple[float, float]]] = {}
+    """The widest range physics allows each parameter, by name (``{}``: its bounds are its
+    limits). A discovery refit that ends on a bound is refitted once with the bound moved out
+    to the limit (:func:`jaxflex.discovery.discover`)."""
+
+    def physical_limits(self, testbed: Testbed, params: Mapping[str, float]
+                        ) -> dict[str, tuple[float, float]]:
+        """:attr:`limits` for the link ``testbed`` and the fitted base ``params`` (an effect
+        whose limit scales with the link, its mass or its stiffness, overrides this)."""
+        return dict(self.limits)
 
     def structure(self, structure: Structure, params: Params) -> Structure:
         """Modify mass or stiffness; the default leaves them unchanged."""

@@ -37,6 +37,8 @@ class Delay(AbstractEffect):
             null=0.0,
         ),
     )
+    limits: ClassVar[dict[str, tuple[float, float]]] = {"d": (0.0, 0.5)}
+    """A dead time of half a second is a different drive, not a latency."""
     description: ClassVar[str] = (
         "A dead time d between the torque the record shows and the torque the joint feels: "
         "communication and amplifier latency, or a torque estimate time-stamped early. "

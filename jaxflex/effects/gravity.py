@@ -40,6 +40,8 @@ class Gravity(AbstractEffect):
             null=0.0,
         ),
     )
+    limits: ClassVar[dict[str, tuple[float, float]]] = {"phi": (0.0, 1.5707963267948966)}
+    """A plane tilted at most to the vertical."""
     description: ClassVar[str] = (
         "The arm moves in a plane tilted by phi from the horizontal, so gravity's in-plane "
         "component g sin(phi) pulls the link (and any payload) down the slope: a joint torque "

@@ -43,6 +43,8 @@ class MotorLag(AbstractEffect):
             null=0.0,
         ),
     )
+    limits: ClassVar[dict[str, tuple[float, float]]] = {"T_m": (0.0, 0.5)}
+    """An electrical time constant of half a second is no motor's."""
     description: ClassVar[str] = (
         "The joint torque lags the commanded torque as a first-order system with time constant "
         "T_m: the current loop of the amplifier and the motor inductance (L/R) do not let the "

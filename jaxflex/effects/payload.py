@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from typing import ClassVar
 
 import equinox as eqx
@@ -9,6 +10,7 @@ import jax.numpy as jnp
 
 from jaxflex.effects._base import AbstractEffect, Structure
 from jaxflex.parameters import ParameterSpec, Params
+from jaxflex.testbed import Testbed
 
 MASS = ParameterSpec(
     "m_p",
@@ -31,6 +33,9 @@ ROTARY_INERTIA = ParameterSpec(
     null=0.0,
 )
 """The payload's rotary inertia about its own centre (a rotary payload only)."""
+LINK_MASSES = 10.0
+"""A payload's physical limit: at most this many times the link's own mass (its rotary inertia:
+that mass at the link's length from its centre)."""
 
 
 class _PayloadParameters:
@@ -73,6 +78,13 @@ class Payload(AbstractEffect):
     )
 
     parameters = _PayloadParameters()  # type: ignore[assignment]
+
+    def physical_limits(self, testbed: Testbed, params: Mapping[str, float]
+                        ) -> dict[str, tuple[float, float]]:
+        """Up to :data:`LINK_MASSES` times the link's mass (a heavier payload is a different
+        arm, not an unlogged accelerometer or clamp)."""
+        mass = LINK_MASSES * testbed.mass_per_length * testbed.length
+        return {"m_p": (0.0, mass), "J_p": (0.0, mass * testbed.length**2)}
 
     def structure(self, structure: Structure, params: Params) -> Structure:
         n = structure.mass.shape[0]

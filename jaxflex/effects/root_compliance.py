@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import functools
+from collections.abc import Mapping
 from typing import ClassVar
 
 import equinox as eqx
@@ -11,6 +12,11 @@ import jax.numpy as jnp
 from jaxflex.effects._base import AbstractEffect, Structure
 from jaxflex.fem import BeamPatterns
 from jaxflex.parameters import ParameterSpec, Params
+from jaxflex.testbed import Testbed
+
+LINK_COMPLIANCES = 10.0
+"""A clamp's physical limit: its compliance at most this many times the link's own bending
+compliance ``L/(E I)`` (softer, the link hangs on a hinge: a different arm)."""
 
 
 @functools.lru_cache(maxsize=16)
@@ -58,6 +64,12 @@ class RootCompliance(AbstractEffect):
         "lowers the resonances, the first most; the tip deflects more per root strain (strain "
         "gauges under-read the tip motion); rigid-body motion and friction unchanged"
     )
+
+    def physical_limits(self, testbed: Testbed, params: Mapping[str, float]
+                        ) -> dict[str, tuple[float, float]]:
+        """Up to :data:`LINK_COMPLIANCES` times ``L/(E I)`` at the fitted Young's modulus."""
+        bending = float(params["E"]) * testbed.second_moment
+        return {"c_r": (0.0, LINK_COMPLIANCES * testbed.length / bending)}
 
     def structure(self, structure: Structure, params: Params) -> Structure:
         n = structure.mass.shape[0]
