@@ -19,8 +19,11 @@ from test_cli import command_parser
 from jaxflex import Model, testbed
 from jaxflex.data import Record
 from jaxflex.discovery import discover
+from jaxflex.discovery.torque_proposal import BOOTSTRAP, claim, formula_of
+from jaxflex.missing_torque import estimate_missing_torque
 from jaxflex.noise import NoiseLevel
 from jaxflex.synthetic import ACCELEROMETER_SIGMA, ENCODER_STEP, quantise_angle
+from jaxflex.torque_regression import MAP_RULES, torque_map
 
 DT, N, HOLD = 2e-3, 1000, 2
 NOISE = {"joint_angle": NoiseLevel.quantised(ENCODER_STEP),
@@ -142,3 +145,14 @@ def test_the_json_carries_the_proposal():
     assert data["steps"][-1]["torque_map"] == mapped
     assert data["settings"]["torque_map"] is True
     assert "torque_map" in data["claim_rules"]
+
+
+def test_a_map_at_noise_level_proposes_nothing_and_says_so():
+    """The clean record's missing torque at the true parameters: the map is at noise level, no
+    formula is made of it, and the claim quotes the map's rule."""
+    model, params = _model()
+    estimate = estimate_missing_torque(_record(False, 0.6, 0.4, 0), model, params, noise=NOISE)
+    tmap = torque_map(estimate, bootstrap=BOOTSTRAP)
+    assert tmap.verdict == "noise" and formula_of(tmap) is None
+    words = claim({"map": tmap.to_dict(), "effect": None})
+    assert words == f"the torque map is {MAP_RULES['noise'][1]}; no formula is proposed"

@@ -151,7 +151,8 @@ RULES: dict[str, Rule] = {r.name: r for r in (
          "formula with the fitted and held-out errors before and after, only when the refit "
          "confirms it and, with held-out records, their error falls (without held-out "
          "records the LR test alone decides; the map was found on the same records, so the "
-         "held-out error is the test that counts)"),
+         "held-out error is the test that counts); where the missing torque cannot be "
+         "estimated on the model, the error says why"),
     Rule("noise", "a channel's residual is consistent with the measurement noise",
          f"the channel's own noise test passes: white noise, RMS within {RMS_RATIO_LIMIT:g} σ "
          "and Ljung–Box p not below the level; quantised, the residual beyond ±q/2 within "

@@ -486,11 +486,15 @@ def _torque_map_step(engine: Engine, last: Step, records: Dataset, holdout: Data
 
     channels = fit_options["channels"]
     final = last.fit
-    estimate = estimate_missing_torque(records, final.model, final.params, channels=channels,
-                                       noise=engine.noise)
+    before = errors(last.nrmse, last.holdout)
+    try:
+        estimate = estimate_missing_torque(records, final.model, final.params,
+                                           channels=channels, noise=engine.noise)
+    except ValueError as error:  # a model or channels the augmented filter does not take
+        return None, {"map": None, "effect": None, "added": False, "error_before": before,
+                      "claim": f"the missing torque could not be mapped ({error})"}
     tmap = torque_map(estimate, bootstrap=BOOTSTRAP, seed=seed)
     effect = formula_of(tmap)
-    before = errors(last.nrmse, last.holdout)
     outcome: dict[str, Any] = {"map": tmap.to_dict(), "effect": None, "formula": None,
                                "added": False, "refit": None, "error_before": before,
                                "error_after": None}
