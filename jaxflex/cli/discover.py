@@ -67,6 +67,10 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--generations", type=positive_int, metavar="N",
                    help="differential-evolution generations for the base model (default 100)")
     p.add_argument("--seed", type=seed, default=0, help="random seed (default: %(default)s)")
+    p.add_argument("--no-torque-map", dest="torque_map", action="store_false",
+                   help="where the library explains nothing, do not map the missing torque "
+                        "nor refit its formula (by default it is mapped, and its formula "
+                        "added when it lowers the held-out error)")
     add_fit_options(p)
     p.add_argument("--json", metavar="OUT.json", help="write the result as JSON")
     p.add_argument("--out", metavar="FIT.json",
@@ -138,7 +142,7 @@ def run(args: argparse.Namespace) -> int:
     report = discover(
         records, holdout=holdout, model=model, candidates=candidates,
         max_steps=args.max_steps, alpha=args.alpha, seed=args.seed, progress=not args.quiet,
-        initial=initial, budget=args.generations, **keywords,
+        initial=initial, budget=args.generations, torque_map=args.torque_map, **keywords,
     )
     print(report.table(), end="")
     for line in report.explanations():

@@ -63,7 +63,11 @@ The loop (:func:`discover`)
     noise when it was added, or it lowered the error on held-out records (the mean over the
     channels; a real rig always keeps some misfit no candidate explains); otherwise it is
     withdrawn, and whatever the residuals still hold is reported as ``unexplained`` — where in time
-    and frequency, and how large.
+    and frequency, and how large. There, with no candidate confirmed at the last step, the missing
+    hub torque is mapped at the final model and, where the map says it is a function of state
+    and input, its formula is refitted as one more candidate and added when confirmed and the
+    held-out error falls (:mod:`jaxflex.discovery.torque_proposal`; ``torque_map=False`` turns
+    it off).
 
 Claims
     What the report says about each candidate (explains, withdrawn, not added and why, the

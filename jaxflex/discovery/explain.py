@@ -139,6 +139,20 @@ RULES: dict[str, Rule] = {r.name: r for r in (
     Rule("concentration", "the misfit lies where the effect acts",
          "the effect acts through friction or a load and one operating condition holds more "
          f"than {CONCENTRATION:g} times its share of the time of the misfit"),
+    Rule("torque_map", "the missing torque's shape, and the formula effect made of it",
+         "stated where the residuals are not noise and no candidate was confirmed at the last "
+         "step: the missing hub torque is estimated at the final model and mapped on terms of "
+         "the state and input (jaxflex.torque_regression, BOOTSTRAP (20) resamples); at noise "
+         "level, or explaining under PARTLY (30 %) of its variance (a sensor, not the "
+         "dynamics), no formula is proposed and the map's words say so; otherwise its terms "
+         "become a formula effect, each coefficient a parameter bounded by ±BOUND_FACTOR (5) "
+         "times the map's value, refitted as a candidate at the run's level alone (LR, BIC, "
+         "bound rules); it is added, and 'the missing torque looks like' its refitted "
+         "formula with the fitted and held-out errors before and after, only when the refit "
+         "confirms it and, with held-out records, their error falls (without held-out "
+         "records the LR test alone decides; the map was found on the same records, so the "
+         "held-out error is the test that counts); where the missing torque cannot be "
+         "estimated on the model, the error says why"),
     Rule("noise", "a channel's residual is consistent with the measurement noise",
          f"the channel's own noise test passes: white noise, RMS within {RMS_RATIO_LIMIT:g} σ "
          "and Ljung–Box p not below the level; quantised, the residual beyond ±q/2 within "

@@ -29,6 +29,13 @@ from jaxflex.discovery.explain import annotate, collect_evidence, percent, ranki
 from jaxflex.discovery.operations import full_params
 from jaxflex.discovery.report import Confirmation, DiscoveryFit, DiscoveryReport, Step
 from jaxflex.discovery.scores import ALPHA, ScoreResult
+from jaxflex.discovery.torque_proposal import (
+    BOOTSTRAP,
+    claim,
+    errors,
+    fitted_expression,
+    formula_of,
+)
 from jaxflex.effects import AbstractEffect
 from jaxflex.evolve import AbstractStrategy, get_strategy
 from jaxflex.initial import DEFAULT_MODES, check_initial_modes, check_initial_state
@@ -220,6 +227,7 @@ def discover(
     max_confirm: int = MAX_CONFIRM,
     initial_state: str = "rest",
     initial_modes: int = DEFAULT_MODES,
+    torque_map: bool = True,
 ) -> DiscoveryReport:
     """Find the effects the model is missing, one at a time (see :mod:`jaxflex.discovery`).
 
@@ -252,8 +260,14 @@ def discover(
     stderr, as :func:`~jaxflex.identification.identify` does. ``initial_state``
     (``"rest"``, ``"estimate"``, ``"periodic"``; ``initial_modes`` modes) says where the
     records start (:mod:`jaxflex.initial`): each record's state, fitted and held out, is
-    estimated with the parameters in every fit, test and prediction. Returns a
-    :class:`DiscoveryReport`.
+    estimated with the parameters in every fit, test and prediction.
+
+    ``torque_map`` (default on): where the run ends with the misfit unexplained and no
+    candidate confirmed, the missing hub torque is mapped at the final model and its expression,
+    where it is a function of state and input, refitted as a formula effect
+    (:mod:`jaxflex.discovery.torque_proposal`, the ``"torque_map"`` claim of
+    :data:`~jaxflex.discovery.explain.RULES`); the report's ``torque_map`` says what came of it.
+    Returns a :class:`DiscoveryReport`.
     """
     t0 = time.perf_counter()
     check_records(records, "discover")
@@ -400,8 +414,19 @@ def discover(
 
     steps, cut = _withdraw(steps)
     withdrawn = [s.added for s in cut if s.added]
-    every = annotate([*steps, *cut], withdrawn, MIN_EXPLAINED,
-                     {c.name: c.effects[0] for c in cands})
+    effects = {c.name: c.effects[0] for c in cands}
+    mapped = None
+    if (torque_map and not steps[-1].diagnosis.consistent_with_noise
+            and sum(s.added is not None for s in steps) < max_steps):
+        step, mapped = _torque_map_step(engine, steps[-1], records, holdout, alpha, seed,
+                                        fit_options, t_end)
+        if step is not None:
+            steps[-1] = dataclasses.replace(steps[-1], ranking=tuple(sorted(
+                (*steps[-1].ranking, mapped.pop("result")), key=ranking_key)))
+            steps.append(step)
+            effects[step.added] = step.fit.model.effects[-1]
+        mapped.pop("result", None)
+    every = annotate([*steps, *cut], withdrawn, MIN_EXPLAINED, effects)
     steps, cut = every[:len(steps)], every[len(steps):]
     unexplained = steps[-1].diagnosis.unexplained()
     if unexplained is not None:
@@ -413,6 +438,8 @@ def discover(
             note = "every candidate is in the model already"
         if withdrawn:
             note += f" ({withdrawn_note(cut, holdout is not None)})"
+        if mapped is not None and mapped["added"]:
+            note = "the library and the mapped torque leave it"
         unexplained["message"] = f"{unexplained['message']}; {note}"
     return DiscoveryReport(
         steps=tuple(steps),
@@ -436,11 +463,83 @@ def discover(
                                 for n in u.base_names},
                              **{n: list(map(float, b)) for n, b in (bounds or {}).items()}},
                   "fixed": dict(u.fixed), "weights": dict(engine.weights),
-                  "min_explained": MIN_EXPLAINED},
+                  "min_explained": MIN_EXPLAINED, "torque_map": bool(torque_map),
+                  "torque_map_bootstrap": BOOTSTRAP},
         wall_time=time.perf_counter() - t0,
         noise_floor={c: d.noise_floor_nrmse for c, d in steps[-1].diagnosis.channels.items()},
         withdrawn_steps=tuple(cut),
+        torque_map=mapped,
     )
+
+
+def _torque_map_step(engine: Engine, last: Step, records: Dataset, holdout: Dataset | None,
+                     alpha: float, seed: int, fit_options: Mapping[str, Any],
+                     t_end: float | None) -> tuple[Step | None, dict[str, Any]]:
+    """The missing torque mapped at ``last``'s fit and, where the map proposes a formula,
+    that formula refitted as a candidate (:func:`~jaxflex.discovery._confirm.confirm`: LR at
+    ``alpha``, BIC, bound rules) and its held-out error: (the step that adds it, or ``None``
+    where it is not added; the outcome, its ``"result"`` the formula's ranked score result
+    where added)."""
+    from jaxflex.discovery.candidates import as_candidate
+    from jaxflex.missing_torque import estimate_missing_torque
+    from jaxflex.torque_regression import torque_map
+
+    channels = fit_options["channels"]
+    final = last.fit
+    before = errors(last.nrmse, last.holdout)
+    try:
+        estimate = estimate_missing_torque(records, final.model, final.params,
+                                           channels=channels, noise=engine.noise)
+    except ValueError as error:  # a model or channels the augmented filter does not take
+        return None, {"map": None, "effect": None, "added": False, "error_before": before,
+                      "claim": f"the missing torque could not be mapped ({error})"}
+    tmap = torque_map(estimate, bootstrap=BOOTSTRAP, seed=seed)
+    effect = formula_of(tmap)
+    outcome: dict[str, Any] = {"map": tmap.to_dict(), "effect": None, "formula": None,
+                               "added": False, "refit": None, "error_before": before,
+                               "error_after": None}
+    if effect is None:
+        return None, outcome | {"claim": claim(outcome)}
+    cand = as_candidate(effect)
+    eng = Engine.build(final.model, (cand,), records, final.params, engine.noise,
+                       bounds=fit_options["bounds"], fixed=fit_options["fixed"],
+                       weights=fit_options["weights"], channels=channels,
+                       record_start=engine.record_start)
+    x0, cost0 = eng.fit(eng.universe.vector(final.params), ())
+    score = eng.score_tests(x0, (), alpha)[0]
+    [(conf, slot, x1, cost1)] = confirm(eng, x0, cost0, [], [
+        (eng.candidate(cand.name), score.estimate, None)], alpha)
+    preds = eng.predictions(x1, records)
+    held_preds = eng.predictions(x1, holdout) if holdout is not None else None
+    nrmse, frf, held = _metrics(records, preds, holdout, held_preds, channels, t_end)
+    if held is not None:
+        conf = dataclasses.replace(conf, holdout_error=_mean_error(held))
+    after = errors(nrmse, held)
+    added = conf.confirmed and (held is None or _mean_error(held) < _mean_error(last.holdout))
+    outcome |= {"effect": effect.name, "formula": effect.expression,
+                "fitted_expression": fitted_expression(effect, conf.params),
+                "added": bool(added), "error_after": after,
+                "refit": {"lr": conf.lr, "p_value": conf.p_value, "level": conf.level,
+                          "delta_bic": conf.delta_bic, "explained": conf.explained,
+                          "confirmed": conf.confirmed, "on_bound": dict(conf.on_bound),
+                          "params": {n: conf.params[n] for n in effect.names}}}
+    outcome["claim"] = claim(outcome)
+    if not added:
+        return None, outcome
+    diag = diagnose(records, preds, noise=eng.noise, alpha=alpha, channels=channels,
+                    units=channel_units(final.model, channels))
+    result = dataclasses.replace(score, evidence=collect_evidence(
+        score, effect, last.diagnosis, conf, level=alpha,
+        holdout_error=_mean_error(last.holdout)))
+    specs = [eng.universe.space[n] for n in eng.universe.base_names]
+    ends = on_bound(eng.universe.params(x1, [slot]), specs)
+    step = Step(added=effect.name, fit=eng.discovery_fit(x1, [slot], cost1), nrmse=nrmse,
+                frf_nrmse=frf, holdout=held, diagnosis=diag, lr=conf.lr, p_value=conf.p_value,
+                explained=conf.explained, predictions=preds,
+                holdout_predictions=tuple(held_preds or ()), on_bound=ends,
+                bounds={s.name: (s.lower, s.upper) for s in specs if s.name in ends},
+                torque_map=outcome)
+    return step, outcome | {"result": result}
 
 
 def _final_ranking(ranking: Sequence[ScoreResult], confirmations: Sequence[Confirmation],

@@ -115,6 +115,7 @@ class Step:
     on_bound: dict[str, str] = field(default_factory=dict)  # base parameters: name → side
     bounds: dict[str, tuple[float, float]] = field(default_factory=dict)  # of those on_bound
     alternatives: tuple[dict[str, Any], ...] = ()  # confirmed candidates about as good
+    torque_map: dict[str, Any] | None = None  # the step that adds the mapped torque: its map
 
     def bound_notes(self) -> list[str]:
         """The :data:`~jaxflex.discovery.explain.RULES` ``"base_on_bound"`` claim of each base
@@ -161,6 +162,7 @@ class Step:
             "explained": self.explained,
             "on_bound": dict(self.on_bound),
             "alternatives": [dict(a) for a in self.alternatives],
+            **({"torque_map": self.torque_map} if self.torque_map is not None else {}),
         }
 
 
@@ -179,6 +181,7 @@ class DiscoveryReport:
     wall_time: float
     noise_floor: dict[str, float]
     withdrawn_steps: tuple[Step, ...] = ()  # the steps cut when their effects were withdrawn
+    torque_map: dict[str, Any] | None = None  # the missing torque's map and what came of it
 
     @property
     def final(self) -> Step:
@@ -248,6 +251,8 @@ class DiscoveryReport:
             share = 100 * self.settings.get("min_explained", 0.9)
             lines.append(f"withdrawn (removed less than {share:.0f} % of the misfit above the "
                          f"noise{held}): {', '.join(self.withdrawn)}")
+        if self.torque_map is not None:
+            lines.append(f"torque map: {self.torque_map['claim']}")
         if self.unexplained:
             lines.append(f"UNEXPLAINED: {self.unexplained['message']}")
         else:
@@ -279,6 +284,8 @@ class DiscoveryReport:
             for r in s.ranking[:3]:
                 if r.explanation:
                     lines.append(r.explanation)
+        if self.torque_map is not None:
+            lines.append(f"{self.torque_map['claim']}.")
         return lines
 
     def to_fit(self) -> Fit:
@@ -353,6 +360,7 @@ class DiscoveryReport:
                         for s in (*self.steps, *self.withdrawn_steps) if s.ranking],
             "withdrawn_steps": [s.to_dict() for s in self.withdrawn_steps],
             "unexplained": self.unexplained,
+            "torque_map": self.torque_map,
             "withdrawn": list(self.withdrawn),
             "claim_rules": {r.name: r.when for r in RULES.values()},
             "noise_floor": self.noise_floor,
