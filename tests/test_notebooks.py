@@ -90,9 +90,13 @@ def test_discover_notebook(monkeypatch, tmp_path):
     assert "base + payload" in run.text  # the hidden payload is found
     assert "UNEXPLAINED" in run.text  # drag is not in the library: said so
     assert "c_q = 0.0" in run.text  # the user's own effect is fitted ...
-    last = "".join(o.get("text", "") for o in run.cells[-1].outputs)
+    drag = next(c for c in run.cells if "with_drag" in c.source)
+    last = "".join(o.get("text", "") for o in drag.outputs)
     assert last.count("consistent with noise") == 2 and "NOT" not in last  # ... to the noise
-    assert run.images >= 3
+    # the cogging torque outside the library, named by the missing torque's map
+    mapped = next(ln for ln in run.text.splitlines() if "the missing torque looks like" in ln)
+    assert "*sin(8*theta)" in mapped and "a function of state and input" in mapped
+    assert run.images >= 4
 
 
 def test_design_notebook(monkeypatch, tmp_path):
