@@ -179,16 +179,18 @@ class TorqueMap(NamedTuple):
         return total
 
 
+def term_product(factor: str, term: str) -> str:
+    """``factor*term`` as formula text: the term in parentheses where it is a sum
+    (``c*(u - Max(Min(u, 0.2), -0.2))``), the constant term ``1`` as ``factor`` alone."""
+    if term == "1":
+        return factor
+    grouped = " + " in term or " - " in term
+    return f"{factor}*({term})" if grouped else f"{factor}*{term}"
+
+
 def _expression(coefficients: dict[str, float]) -> str:
     """``c1*term1 + c2*term2``, each coefficient to four significant digits."""
-    parts = []
-    for term, c in coefficients.items():
-        number = f"{c:.4g}"
-        if term == "1":
-            parts.append(number)
-        else:
-            grouped = " + " in term or " - " in term
-            parts.append(f"{number}*({term})" if grouped else f"{number}*{term}")
+    parts = [term_product(f"{c:.4g}", term) for term, c in coefficients.items()]
     text = " + ".join(parts) or "0"
     return text.replace("+ -", "- ")
 
@@ -301,4 +303,4 @@ def torque_map(estimate: MissingTorque, *, terms: Sequence[str] | None = None,
 
 
 __all__ = ["MAP_RULES", "TorqueMap", "VARIABLES", "default_terms", "evaluate_terms",
-           "correlation_time", "term_function", "term_variables", "torque_map"]
+           "correlation_time", "term_function", "term_product", "term_variables", "torque_map"]

@@ -18,7 +18,7 @@ from collections.abc import Mapping
 from typing import Any
 
 from jaxflex.effects.formula import FormulaError, FormulaTorque
-from jaxflex.torque_regression import MAP_RULES, TorqueMap
+from jaxflex.torque_regression import MAP_RULES, TorqueMap, term_product
 
 BOOTSTRAP = 20
 """The map's bootstrap resamples inside ``discover`` (``torque_map`` itself takes 50): enough
@@ -47,11 +47,7 @@ def formula_of(tmap: TorqueMap, name: str = EFFECT_NAME) -> FormulaTorque | None
     parts, parameters = [], {}
     for k, (term, value) in enumerate(tmap.coefficients.items(), start=1):
         c = f"c{k}"
-        if term == "1":
-            parts.append(c)
-        else:
-            grouped = " + " in term or " - " in term
-            parts.append(f"{c}*({term})" if grouped else f"{c}*{term}")
+        parts.append(term_product(c, term))
         width = BOUND_FACTOR * abs(value) if value != 0 else 1.0
         parameters[c] = (float(value), -width, width)
     try:
