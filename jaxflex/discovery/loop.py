@@ -390,10 +390,8 @@ def discover(
                     for c, x1 in zip(confirmations, ends, strict=True)]
             ranking = _final_ranking(ranking, confirmations, u.candidates, diag, alpha / m,
                                      _mean_error(held), skipped)
-        specs = [engine.universe.space[n] for n in u.base_names]
-        ends = on_bound(u.params(x, active), specs)
         steps.append(Step(
-            on_bound=ends, bounds={s.name: (s.lower, s.upper) for s in specs if s.name in ends},
+            **_base_on_bounds(u, x, active),
             added=added.get("name"), fit=engine.discovery_fit(x, active, cost), nrmse=nrmse,
             frf_nrmse=frf, holdout=held, diagnosis=diag, ranking=tuple(ranking),
             confirmations=tuple(confirmations), lr=added.get("lr"),
@@ -472,6 +470,15 @@ def discover(
     )
 
 
+def _base_on_bounds(universe, x: np.ndarray, active) -> dict[str, Any]:
+    """A step's ``on_bound`` and ``bounds``: the base parameters that end on a bound at ``x``
+    (:func:`~jaxflex.discovery._confirm.on_bound`) and those parameters' bounds."""
+    specs = [universe.space[n] for n in universe.base_names]
+    ends = on_bound(universe.params(x, active), specs)
+    return {"on_bound": ends,
+            "bounds": {s.name: (s.lower, s.upper) for s in specs if s.name in ends}}
+
+
 def _torque_map_step(engine: Engine, last: Step, records: Dataset, holdout: Dataset | None,
                      alpha: float, seed: int, fit_options: Mapping[str, Any],
                      t_end: float | None) -> tuple[Step | None, dict[str, Any]]:
@@ -531,14 +538,11 @@ def _torque_map_step(engine: Engine, last: Step, records: Dataset, holdout: Data
     result = dataclasses.replace(score, evidence=collect_evidence(
         score, effect, last.diagnosis, conf, level=alpha,
         holdout_error=_mean_error(last.holdout)))
-    specs = [eng.universe.space[n] for n in eng.universe.base_names]
-    ends = on_bound(eng.universe.params(x1, [slot]), specs)
     step = Step(added=effect.name, fit=eng.discovery_fit(x1, [slot], cost1), nrmse=nrmse,
                 frf_nrmse=frf, holdout=held, diagnosis=diag, lr=conf.lr, p_value=conf.p_value,
                 explained=conf.explained, predictions=preds,
-                holdout_predictions=tuple(held_preds or ()), on_bound=ends,
-                bounds={s.name: (s.lower, s.upper) for s in specs if s.name in ends},
-                torque_map=outcome)
+                holdout_predictions=tuple(held_preds or ()),
+                **_base_on_bounds(eng.universe, x1, [slot]), torque_map=outcome)
     return step, outcome | {"result": result}
 
 
