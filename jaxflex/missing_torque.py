@@ -12,12 +12,13 @@ the records (a bounded 1-D search in ``log √q``). A Rauch–Tung–Striebel pa
 each record, the smoothed ``d̂(t)``, its standard deviation, the hub angle ``θ̂`` and velocity
 ``ω̂`` (the simulator's joint angle and velocity of the smoothed state).
 
-:func:`torque_map` regresses ``d̂`` on a library of candidate terms of ``θ̂, ω̂, u, t``
-(:func:`default_terms`; each term's name is a formula in those variables): the lasso path with
-the Bayesian information criterion on standardised columns (scikit-learn's ``LassoLarsIC``),
-stability selection by a moving-block bootstrap (samples of ``d̂`` are correlated), then an
-ordinary least-squares refit on the stable terms with block-bootstrap 95 % intervals. Its words
-follow :data:`MAP_RULES`.
+:func:`jaxflex.torque_regression.torque_map` regresses ``d̂`` on a library of candidate terms
+of ``θ̂, ω̂, u, t`` (:func:`~jaxflex.torque_regression.default_terms`; each term's name is a
+formula in those variables): the lasso path with the Bayesian information criterion on
+standardised columns (scikit-learn's ``LassoLarsIC``), stability selection by a moving-block
+bootstrap (samples of ``d̂`` are correlated), then an ordinary least-squares refit on the
+stable terms with block-bootstrap 95 % intervals. Its words follow
+:data:`~jaxflex.torque_regression.MAP_RULES`.
 """
 
 from __future__ import annotations

@@ -20,6 +20,7 @@ from jaxflex.cli._checks import (
     max_samples,
     positive_int,
     read_fit,
+    seed,
 )
 from jaxflex.cli._options import add_quiet_option, add_record_options
 from jaxflex.cli.identify import sources
@@ -51,7 +52,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--harmonics", type=positive_int, default=8, metavar="K",
                    help="highest k of the sin(k*theta), cos(k*theta) terms (default: "
                         "%(default)s)")
-    p.add_argument("--seed", type=int, default=0, help="seed of the resamples (default: 0)")
+    p.add_argument("--seed", type=seed, default=0, help="seed of the resamples (default: 0)")
     add_record_options(p)
     add_max_samples(p)
     add_arm_arguments(p)
@@ -62,7 +63,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
 def run(args: argparse.Namespace) -> int:
     import numpy as np
 
-    from jaxflex._io import all_or_nothing, write_json
+    from jaxflex._io import all_or_nothing, provenance, write_json
     from jaxflex._progress import stage
     from jaxflex.missing_torque import estimate_missing_torque
     from jaxflex.plots import save_figure
@@ -71,7 +72,7 @@ def run(args: argparse.Namespace) -> int:
 
     _, params, fit = read_fit("--fit", args.fit)
     model, _ = rig_of(args, fit)
-    records = [r for name in args.data for r in load_rig_records([name], args, model)]
+    records = list(load_rig_records(args.data, args, model))
     check_size(sum(r.n_samples for r in records), f"{len(records)} record(s)",
                n_elements=model.testbed.n_elements, limit=max_samples(args.max_samples))
     directory = check_directory("--out", args.out)
@@ -95,7 +96,10 @@ def run(args: argparse.Namespace) -> int:
         write_json(json_path, {
             "rig": model.name, "intensity": estimate.intensity,
             "integrated": estimate.integrated, "records": [r.name for r in estimate.records],
-            "map": found.to_dict()}, overwrite=args.overwrite)
+            "map": found.to_dict(),
+            "settings": {"fit": str(args.fit), "seed": args.seed, "bootstrap": args.bootstrap,
+                         "harmonics": args.harmonics},
+            "provenance": provenance()}, overwrite=args.overwrite)
         save_figure(plot_missing_torque(estimate, found, input_unit=unit), figure_path,
                     overwrite=args.overwrite)
     print(f"wrote {json_path} and {figure_path}")
